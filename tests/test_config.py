@@ -1,0 +1,98 @@
+"""The config files and their JSON schema (cvsim6.config)."""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+
+from cvsim6.config import SCHEMA_PATH, ConfigError, find_schema, load_config, validate_config
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ["config.yaml", "paper.yaml", "smoke.yaml"]
+
+
+@pytest.fixture
+def default_config() -> dict:
+    return load_config(ROOT / "config" / "config.yaml")
+
+
+def test_schema_path_is_the_repository_schema():
+    assert SCHEMA_PATH == ROOT / "workflow" / "schemas" / "config.schema.yaml"
+    assert find_schema(ROOT / "config") == SCHEMA_PATH
+
+
+@pytest.mark.parametrize("name", CONFIGS)
+def test_shipped_configs_validate(name):
+    cfg = load_config(ROOT / "config" / name)
+    before = copy.deepcopy(cfg)
+    validate_config(cfg)
+    validate_config(cfg, schema_path=SCHEMA_PATH)
+    assert cfg == before, "validation must not inject defaults"
+
+
+def test_smoke_config_is_small_and_others_are_paper_sized():
+    assert load_config(ROOT / "config" / "smoke.yaml")["simulator"]["steps_per_cycle"] == 200
+    for name in ("config.yaml", "paper.yaml"):
+        sim = load_config(ROOT / "config" / name)["simulator"]
+        assert sim == {"steps_per_cycle": 600, "n_cycles": 12, "window_cycles": 3, "method": "batch"}
+
+
+def test_ehr_source(default_config):
+    ehr = default_config["ehr_data"]
+    assert ehr["path"] is None
+    assert ehr["url"].endswith("/EHR_dataset.csv")
+    assert ehr["sha256"] == "5beb040de24c2b6abad0963c002584957a7f422be084ccd7654c5c501b7e48ee"
+
+
+def test_wrong_type_names_the_key(default_config):
+    default_config["simulator"]["steps_per_cycle"] = "abc"
+    with pytest.raises(ConfigError) as err:
+        validate_config(default_config)
+    assert "simulator.steps_per_cycle" in str(err.value)
+    assert "'abc' is not of type 'integer'" in str(err.value)
+
+
+def test_out_of_range_and_bad_enum_name_the_keys(default_config):
+    default_config["seed"] = -1
+    default_config["simulator"]["method"] = "euler"
+    with pytest.raises(ConfigError) as err:
+        validate_config(default_config)
+    assert "seed:" in str(err.value)
+    assert "simulator.method:" in str(err.value)
+
+
+@pytest.mark.parametrize("section", [None, "simulator", "ehr_data"])
+def test_unknown_key_is_named(default_config, section):
+    target = default_config if section is None else default_config[section]
+    target["foo"] = 1
+    with pytest.raises(ConfigError) as err:
+        validate_config(default_config)
+    assert "'foo'" in str(err.value)
+    if section is not None:
+        assert f"unknown key 'foo' in {section}" in str(err.value)
+
+
+def test_config_error_is_a_value_error():
+    assert issubclass(ConfigError, ValueError)
+
+
+def test_schema_documents_every_key_and_forbids_unknown_ones():
+    import yaml
+
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+
+    def walk(node, where):
+        if node.get("type") == "object":
+            assert node.get("additionalProperties") is False, where
+        for key, sub in node.get("properties", {}).items():
+            assert sub.get("description"), f"{where}.{key} has no description"
+            walk(sub, f"{where}.{key}")
+
+    walk(schema, "<root>")
+
+
+def test_empty_file_loads_as_empty_dict(tmp_path):
+    p = tmp_path / "empty.yaml"
+    p.write_text("")
+    assert load_config(p) == {}

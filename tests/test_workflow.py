@@ -1,0 +1,212 @@
+"""The Snakemake workflow: dry runs, lint, config validation, and real runs of the table rules."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from cvsim6 import registry
+
+ROOT = Path(__file__).resolve().parents[1]
+SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+CALL_PY = ROOT / "workflow" / "scripts" / "call.py"
+TABLE_TARGETS = [
+    "results/tables/input_parameters.csv",
+    "results/tables/input_parameters.md",
+    "results/tables/output_parameters.csv",
+    "results/tables/output_parameters.md",
+]
+
+
+def snakemake(*args: str, cwd: Path = ROOT, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [SNAKEMAKE, *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=env
+    )
+
+
+def copy_workflow(dest: Path) -> Path:
+    """A copy of what the workflow needs (no results, no .snakemake) under ``dest``."""
+    dest.mkdir(parents=True, exist_ok=True)
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+    shutil.copy2(ROOT / "Snakefile", dest / "Snakefile")
+    for folder in ("config", "workflow", "src"):
+        shutil.copytree(ROOT / folder, dest / folder, ignore=ignore)
+    return dest
+
+
+@pytest.mark.parametrize("configfile", [None, "config/smoke.yaml", "config/paper.yaml"])
+def test_dry_run(configfile):
+    args = ["-n", "--forceall", "all"] + (["--configfile", configfile] if configfile else [])
+    proc = snakemake(*args)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout + proc.stderr
+    assert "input_parameter_table" in out and "output_parameter_table" in out
+
+
+def test_dry_run_with_profiles():
+    for profile in ("local", "slurm"):
+        proc = snakemake("-n", "--forceall", "--workflow-profile", f"workflow/profiles/{profile}", "all")
+        assert proc.returncode == 0, proc.stderr
+
+
+def test_lint_is_clean():
+    proc = snakemake("--lint")
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out
+    assert "Lints for" not in out, out
+    assert "good condition" in out
+
+
+def bad_config(tmp_path: Path) -> Path:
+    """The smoke config with a misspelled key in the simulator section."""
+    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    cfg["simulator"]["stepz_per_cycle"] = 300
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(cfg))
+    return bad
+
+
+def test_unknown_config_key_fails_dry_run(tmp_path):
+    # Targets go before --configfile/--config: those options take several values.
+    proc = snakemake("-n", "all", "--configfile", str(bad_config(tmp_path)))
+    out = proc.stdout + proc.stderr  # a dry run logs to stdout
+    assert proc.returncode != 0
+    assert "Error validating config file" in out
+    assert "'stepz_per_cycle' was unexpected" in out
+    assert "rule input_parameter_table" not in out
+
+
+def test_unknown_config_key_fails_before_any_job(tmp_path):
+    work = copy_workflow(tmp_path / "work")
+    proc = snakemake("--cores", "1", "all", "--configfile", str(bad_config(tmp_path)), cwd=work)
+    assert proc.returncode != 0
+    assert "stepz_per_cycle" in proc.stderr
+    assert not (work / "results").exists()
+    assert not (work / "logs").exists()
+
+
+def test_wrong_config_type_fails():
+    proc = snakemake("-n", "all", "--config", "seed=abc")
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert "'abc' is not of type 'integer'" in out
+    assert "seed" in out
+
+
+@pytest.mark.slow
+def test_table_rules_end_to_end(tmp_path):
+    work = copy_workflow(tmp_path)
+    proc = snakemake("--cores", "1", *TABLE_TARGETS, "--configfile", "config/smoke.yaml", cwd=work)
+    assert proc.returncode == 0, proc.stderr
+
+    inputs = pd.read_csv(work / "results/tables/input_parameters.csv").set_index("Name")
+    assert tuple(inputs.index) == registry.PARAMETER_NAMES
+    assert inputs.loc["C_l_dia", "Default (CGS)"] == pytest.approx(7.50e-3, rel=2e-3)
+    assert inputs.loc["R_a", "Default (CGS)"] == pytest.approx(1333.22)
+    assert inputs.loc["C_pa", "Default (CGS)"] == pytest.approx(3.23e-3, rel=2e-3)
+    outputs = pd.read_csv(work / "results/tables/output_parameters.csv")
+    assert list(outputs["Noise std"]) == list(registry.noise_std())
+    md = (work / "results/tables/input_parameters.md").read_text(encoding="utf-8")
+    assert sum(line.startswith("|") for line in md.splitlines()) == 2 + 23
+
+    for rule in ("input_parameter_table", "output_parameter_table"):
+        log = (work / "logs" / f"{rule}.log").read_text()
+        assert f"rule {rule}: done" in log
+        assert (work / "benchmarks" / f"{rule}.tsv").is_file()
+
+    # Up to date now; a change to the package code makes both tables stale.
+    proc = snakemake("-n", *TABLE_TARGETS, "--configfile", "config/smoke.yaml", cwd=work)
+    assert "Nothing to be done" in proc.stdout + proc.stderr
+    with open(work / "src/cvsim6/tables.py", "a") as fh:
+        fh.write("\n# changed\n")
+    proc = snakemake("-n", *TABLE_TARGETS, "--configfile", "config/smoke.yaml", cwd=work)
+    out = proc.stdout + proc.stderr
+    assert "Updated input files: src/cvsim6/tables.py" in out
+    assert "input_parameter_table" in out and "output_parameter_table" in out
+
+
+PROBE_MODULE = '''
+import json, sys
+
+def probe(single, many, out, number, threads):
+    print("to stdout")
+    print("to stderr", file=sys.stderr)
+    with open(out, "w") as fh:
+        json.dump({"single": single, "many": many, "out": out, "number": number, "threads": threads}, fh)
+
+def no_threads(out):
+    open(out, "w").close()
+
+def fails(out):
+    raise RuntimeError("probe failure")
+'''
+
+PROBE_SNAKEFILE = '''
+rule probe:
+    input:
+        code="probe.py",
+        single="a.txt",
+        many=["a.txt", "b.txt"],
+    output:
+        out="probe.json",
+    params:
+        function="probe:probe",
+        number=3,
+    threads: 2
+    log:
+        "probe.log",
+    script:
+        "{call}"
+
+rule no_threads:
+    output:
+        out="no_threads.txt",
+    params:
+        function="probe:no_threads",
+    log:
+        "no_threads.log",
+    script:
+        "{call}"
+
+rule fails:
+    output:
+        out="fails.txt",
+    params:
+        function="probe:fails",
+    log:
+        "fails.log",
+    script:
+        "{call}"
+'''
+
+
+@pytest.mark.slow
+def test_call_adapter(tmp_path):
+    (tmp_path / "probe.py").write_text(PROBE_MODULE)
+    (tmp_path / "Snakefile").write_text(textwrap.dedent(PROBE_SNAKEFILE).format(call=CALL_PY))
+    (tmp_path / "a.txt").write_text("a")
+    (tmp_path / "b.txt").write_text("b")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+
+    proc = snakemake("--cores", "2", "probe.json", "no_threads.txt", cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads((tmp_path / "probe.json").read_text())
+    assert got == {"single": "a.txt", "many": ["a.txt", "b.txt"], "out": "probe.json", "number": 3, "threads": 2}
+    log = (tmp_path / "probe.log").read_text()
+    assert "to stdout" in log and "to stderr" in log
+    assert "INFO call: rule probe: probe:probe(" in log
+    assert (tmp_path / "no_threads.txt").is_file()
+
+    proc = snakemake("--cores", "1", "fails.txt", cwd=tmp_path, env=env)
+    assert proc.returncode != 0
+    log = (tmp_path / "fails.log").read_text()
+    assert "ERROR call: rule fails: probe:fails failed" in log
+    assert "Traceback" in log and "RuntimeError: probe failure" in log

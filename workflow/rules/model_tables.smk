@@ -1,0 +1,45 @@
+# Tables 1 and 2 of the paper: model inputs and outputs, from cvsim6.registry.
+
+
+rule input_parameter_table:
+    input:
+        code=package_code("registry", "tables"),
+    output:
+        csv=f"{TABLES}/input_parameters.csv",
+        md=report(f"{TABLES}/input_parameters.md", category="Model", caption="../report/input_parameters.rst"),
+    params:
+        function="cvsim6.tables:write_input_table",
+    log:
+        f"{LOGS}/input_parameter_table.log",
+    benchmark:
+        f"{BENCHMARKS}/input_parameter_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule output_parameter_table:
+    input:
+        code=package_code("registry", "tables"),
+    output:
+        csv=f"{TABLES}/output_parameters.csv",
+        md=report(f"{TABLES}/output_parameters.md", category="Model", caption="../report/output_parameters.rst"),
+    params:
+        function="cvsim6.tables:write_output_table",
+    log:
+        f"{LOGS}/output_parameter_table.log",
+    benchmark:
+        f"{BENCHMARKS}/output_parameter_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

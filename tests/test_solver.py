@@ -1,0 +1,143 @@
+"""The batch solver against known values, invariants and the Radau reference."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsim6 import model, registry, solver
+from cvsim6.solver import STATUS_REASONS
+
+NAMES = registry.OUTPUT_NAMES
+I = registry.PARAMETER_INDEX
+#: Agreement required of the batch path: 0.1% relative, or these absolute (units of each output).
+ABS_TOL = np.array([0, .05, .05, .05, .05, .05, .05, .05, .05, .05, .1, .1, 5e-4, 5e-3, 1e-9, 1e-9])
+#: Facts page, tightly converged implicit solve at the default parameters (outputs 2..16).
+FACTS = {
+    "P_a_sys": 109.450, "P_a_dia": 74.803, "P_r_sys": 22.181, "P_r_dia": -2.151,
+    "P_pa_sys": 21.696, "P_pa_dia": 10.327, "P_r_edp": 0.901, "P_w": 8.913, "P_cvp": 6.814,
+    "V_l_sys": 60.032, "V_l_dia": 131.768, "LVEF": 0.5444, "CO": 5.166, "SVR": 1333.3, "PVR": 106.6,
+}
+
+
+def within(a, b, abs_tol=ABS_TOL, rel=1e-3):
+    a, b = np.asarray(a), np.asarray(b)
+    return (np.abs(a - b) <= rel * np.abs(b)) | (np.abs(a - b) <= abs_tol)
+
+
+@pytest.fixture(scope="module")
+def default_batch(default_params):
+    out, st = solver.simulate_batch(default_params)
+    assert st[0] == 0
+    return out[0]
+
+
+@pytest.fixture(scope="module")
+def default_reference(default_params):
+    out, st = solver.simulate_reference(default_params)
+    assert st[0] == 0
+    return out[0]
+
+
+@pytest.mark.parametrize("path", ["batch", "reference"])
+def test_default_reproduces_facts_page(path, default_batch, default_reference):
+    out = default_batch if path == "batch" else default_reference
+    for name, ref in FACTS.items():
+        j = registry.OUTPUT_INDEX[name]
+        # the facts page rounds to the digits it prints
+        tol = max(ABS_TOL[j], 1e-3 * abs(ref), 0.5 * 10.0 ** (-len(str(ref).split(".")[1])))
+        assert abs(out[j] - ref) <= tol, (name, out[j], ref)
+    assert out[0] == 72.0
+
+
+def test_svr_is_arterial_resistance_in_clinical_units(structural_sets):
+    """SVR = (mean P_a - mean P_v)/CO = R_a * 1000/60 * 80 exactly (no valve on Q_a)."""
+    out, st = solver.simulate_batch(structural_sets[:16])
+    assert (st == 0).all()
+    np.testing.assert_allclose(out[:, NAMES.index("SVR")], structural_sets[:16, I["R_a"]] * 1000 / 60 * 80, rtol=1e-10)
+    # LVEF is computed from the two volumes
+    lv = (out[:, 11] - out[:, 10]) / out[:, 11]
+    np.testing.assert_allclose(out[:, NAMES.index("LVEF")], lv, rtol=1e-14)
+
+
+def test_total_volume_is_conserved_along_trajectory(ehr_sets):
+    for p in (registry.default_parameters(), ehr_sets[3]):
+        traj, out, st = solver.simulate_trajectory(p)
+        assert st == 0
+        vt = traj.V.sum(axis=1)
+        assert np.abs(vt - registry.V_TOTAL_ML).max() < 1e-9 * registry.V_TOTAL_ML
+        # pressures from volumes agree with the volume law of the model
+        np.testing.assert_allclose(model.volumes(traj.t, traj.P, p), traj.V, rtol=1e-12, atol=1e-9)
+        # valves follow the pressures: an open valve never carries backward flow
+        for name, k in registry.VALVES.items():
+            q = traj.Q[:, k]
+            assert (q >= -1e-6 * np.abs(q).max()).all(), name
+        # the trajectory's own extrema bound the reported outputs
+        T = 60 / p[0]
+        win = traj.t >= 9 * T - 1e-12
+        assert out[1] >= traj.P[win, 1].max() - 1e-12
+        assert out[2] <= traj.P[win, 1].min() + 1e-12
+        assert traj.t[-1] == pytest.approx(12 * T)
+
+
+def test_reference_conserves_total_volume(default_params):
+    sol = solver.reference_solution(default_params)
+    t = np.linspace(0, sol.t_end, 3001)
+    vt = model.total_volume(t, sol.pressures(t), default_params)
+    assert np.abs(vt - registry.V_TOTAL_ML).max() < 1e-5
+
+
+def test_batch_matches_reference_on_both_priors(structural_sets, ehr_sets):
+    """Random sets from the structural and the wide EHR prior (the stiff case)."""
+    P = np.vstack([structural_sets[20:22], ehr_sets[20:23]])
+    ref, rs = solver.simulate_reference(P)
+    out, st = solver.simulate_batch(P)
+    assert (rs == 0).all() and (st == 0).all()
+    ok = within(out, ref)
+    assert ok.all(), [(r, NAMES[j], out[r, j], ref[r, j]) for r, j in np.argwhere(~ok)]
+
+
+def test_rows_are_bit_identical_whatever_the_batch(ehr_sets):
+    full, st_full = solver.simulate_batch(ehr_sets[:40])
+    for chunk in (1, 7):
+        parts = [solver.simulate_batch(ehr_sets[i:i + chunk])[0] for i in range(0, 40, chunk)]
+        assert np.array_equal(np.vstack(parts), full, equal_nan=True)
+    alone, _ = solver.simulate_batch(ehr_sets[5:6])
+    assert np.array_equal(alone[0], full[5])
+
+
+def test_flagged_row_leaves_other_rows_intact(structural_sets):
+    P = structural_sets[:5].copy()
+    # unstressed volumes above the total blood volume: negative compartment volumes
+    P[2, I["V0_v"]] = 6000.0
+    out, st = solver.simulate_batch(P)
+    assert st[2] != 0 and STATUS_REASONS[int(st[2])] != "ok"
+    good = np.delete(np.arange(5), 2)
+    assert (st[good] == 0).all()
+    alone, _ = solver.simulate_batch(P[good])
+    assert np.array_equal(out[good], alone)
+    df = solver.simulate(P)
+    assert list(df.columns) == list(NAMES) + ["status"]
+    assert df.loc[2, "status"] == STATUS_REASONS[int(st[2])]
+    assert (df.drop(index=2)["status"] == "ok").all()
+
+
+def test_bad_input_raises_naming_row_and_parameter(default_params):
+    P = np.repeat(default_params[None], 3, axis=0)
+    P[1, I["C_pv"]] = -0.5
+    with pytest.raises(model.ParameterError, match=r"row 1: parameter C_pv = -0.5"):
+        solver.simulate_batch(P)
+    with pytest.raises(model.ParameterError, match=r"row 1: parameter C_pv"):
+        solver.simulate(pd.DataFrame(P, columns=registry.PARAMETER_NAMES), method="reference")
+    with pytest.raises(ValueError, match="unknown method"):
+        solver.simulate(default_params, method="euler")
+
+
+def test_trajectory_frame_has_every_signal(default_params):
+    traj, _, _ = solver.simulate_trajectory(default_params, steps_per_cycle=200, n_cycles=4, window_cycles=1)
+    df = traj.to_frame()
+    for col in ["t", "P_l", "P_pv", "V_l", "Q_l_out", "Q_l_in", "C_l", "C_r",
+                "valve_aortic", "valve_mitral", "valve_tricuspid", "valve_pulmonary"]:
+        assert col in df
+    assert df["t"].is_monotonic_increasing
+    # the aortic valve opens and closes once per cycle
+    opens = np.count_nonzero(np.diff(df["valve_aortic"].to_numpy()) == 1)
+    assert opens == 4

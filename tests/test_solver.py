@@ -96,11 +96,12 @@ def test_batch_matches_reference_on_both_priors(structural_sets, ehr_sets):
 
 
 def test_rows_are_bit_identical_whatever_the_batch(ehr_sets):
-    full, st_full = solver.simulate_batch(ehr_sets[:40])
+    P = ehr_sets[:40]
+    full, _ = solver.simulate_batch(P)
     for chunk in (1, 7):
-        parts = [solver.simulate_batch(ehr_sets[i:i + chunk])[0] for i in range(0, 40, chunk)]
+        parts = [solver.simulate_batch(P[i:i + chunk])[0] for i in range(0, len(P), chunk)]
         assert np.array_equal(np.vstack(parts), full, equal_nan=True)
-    alone, _ = solver.simulate_batch(ehr_sets[5:6])
+    alone, _ = solver.simulate_batch(P[5:6])
     assert np.array_equal(alone[0], full[5])
 
 

@@ -216,10 +216,11 @@ def simulate_trajectory(
     rt = np.empty(nmax)
     rV = np.empty((nmax, 6))
     rs = np.empty((nmax, 6), dtype=np.int64)
-    out = np.empty(N_OUTPUTS)
-    st, nrec = _integrate(p, int(steps_per_cycle), int(n_cycles), int(window_cycles), out, rt, rV, rs)
+    out = np.empty((1, N_OUTPUTS))
+    st = np.zeros(1, dtype=np.int64)
+    nrec = _kernel.lockstep(P, int(steps_per_cycle), int(n_cycles), int(window_cycles), out, st, rt, rV, rs)
     # at a cycle end the local time is T (not 0): compliances are periodic, so equal
-    return _trajectory_from_nodes(p, rt[:nrec], rV[:nrec], rs[:nrec]), out, int(st)
+    return _trajectory_from_nodes(p, rt[:nrec], rV[:nrec], rs[:nrec]), out[0], int(st[0])
 
 
 # ----------------------------------------------------------------------------- reference

@@ -1,0 +1,111 @@
+"""Training data: seeding, sharding, failures, splits, file format."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsim6 import datasets, registry
+from cvsim6.datasets import DataError
+
+PRIOR = {"default": [0.7, 1.3], "kinds": {"compliance": [0.5, 1.5]}}
+SIM = {"steps_per_cycle": 400, "n_cycles": 12, "window_cycles": 3, "method": "batch"}
+SPLIT = {"validation": 10, "train_fraction": 0.75}
+
+
+def build(tmp, n_shards, n=80, seed=3, max_fail=0.5, edit=None):
+    """Run the three data steps as the workflow does, with ``n_shards`` shards."""
+    tmp.mkdir(parents=True, exist_ok=True)
+    shards = [str(tmp / f"p{i}.parquet") for i in range(n_shards)]
+    datasets.sample_prior(str(tmp / "params.parquet"), PRIOR, n, seed, "structural", shards=shards)
+    if edit is not None:
+        edit(shards)
+    sims = []
+    for i, sp in enumerate(shards):
+        out = str(tmp / f"s{i}.parquet")
+        datasets.simulate_shard(sp, out, SIM, shard=f"{i + 1}-of-{n_shards}")
+        sims.append(out)
+    paths = {k: str(tmp / f"{k}.parquet") for k in datasets.SPLITS}
+    datasets.gather_study(sims, **paths, failures=str(tmp / "failures.csv"), manifest=str(tmp / "manifest.json"),
+                          study="structural", split=SPLIT, max_failure_fraction=max_fail, prior=PRIOR,
+                          seed=seed, simulator=SIM)
+    return {k: datasets.read_dataset(v) for k, v in paths.items()}
+
+
+def test_paper_split_sizes():
+    assert datasets.split_sizes(54000, 4000, 0.75) == {"train": 37500, "test": 12500, "validation": 4000}
+    with pytest.raises(DataError, match="validation = 50"):
+        datasets.split_sizes(50, 50, 0.75)
+
+
+def test_datasets_identical_for_1_and_4_shards(tmp_path):
+    one = build(tmp_path / "one", 1)
+    four = build(tmp_path / "four", 4)
+    for k in datasets.SPLITS:
+        pd.testing.assert_frame_equal(one[k], four[k], check_exact=True)
+    sizes = {k: len(v) for k, v in one.items()}
+    assert sizes == {"train": 52, "test": 18, "validation": 10}
+    # rows keep their sample order: train, then test, then validation
+    order = np.concatenate([one[k]["sample"].to_numpy() for k in datasets.SPLITS])
+    assert (order == np.arange(80)).all()
+    # a different master seed gives different data
+    other = build(tmp_path / "other", 2, seed=4)
+    assert not np.allclose(other["train"]["C_a"].to_numpy(), one["train"]["C_a"].to_numpy())
+
+
+def test_samples_lie_in_the_prior(tmp_path):
+    datasets.sample_prior(str(tmp_path / "p.parquet"), PRIOR, 500, 1, "structural")
+    df = datasets.read_dataset(tmp_path / "p.parquet")
+    ca = df["C_a"] / registry.PARAMETER_BY_NAME["C_a"].default
+    ra = df["R_a"] / registry.PARAMETER_BY_NAME["R_a"].default
+    assert ca.between(0.5, 1.5).all() and ca.min() < 0.55 and ca.max() > 1.45
+    assert ra.between(0.7, 1.3).all()
+    assert df["P_th"].between(-5.2, -2.8).all()
+
+
+def _poison(shards):
+    """Unstressed volumes above the blood volume in sample 7: a flagged row."""
+    df = datasets.read_dataset(shards[0])
+    df.loc[df["sample"] == 7, "V0_v"] = 6000.0
+    datasets.write_dataset(df, shards[0])
+
+
+def test_flagged_row_goes_to_failures_not_splits(tmp_path):
+    splits = build(tmp_path, 2, edit=_poison)
+    fails = pd.read_csv(tmp_path / "failures.csv")
+    assert list(fails["sample"]) == [7]
+    assert fails.loc[0, "status"] == "negative compartment volume"
+    assert fails.loc[0, "V0_v"] == 6000.0
+    for df in splits.values():
+        assert 7 not in set(df["sample"])
+        assert "status" not in df
+    assert sum(len(df) for df in splits.values()) == 79
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["n_failed"] == 1
+    assert manifest["failures_by_reason"] == {"negative compartment volume": 1}
+    assert manifest["split_sizes"] == {"train": 51, "test": 18, "validation": 10}
+    assert manifest["prior_bounds"]["C_a"] == pytest.approx([0.8, 2.4])
+
+
+def test_gather_fails_above_threshold_and_keeps_shards(tmp_path):
+    with pytest.raises(DataError, match=r"1 of 80 simulated rows flagged .*max_failure_fraction"):
+        build(tmp_path, 2, edit=_poison, max_fail=0.0)
+    assert (tmp_path / "s0.parquet").is_file() and (tmp_path / "s1.parquet").is_file()
+    assert list(pd.read_csv(tmp_path / "failures.csv")["sample"]) == [7]
+
+
+def test_parquet_keeps_names_and_units(tmp_path):
+    build(tmp_path, 1, n=30)
+    units = datasets.dataset_units(tmp_path / "train.parquet")
+    assert units["C_a"] == "mL/mmHg" and units["SVR"] == "dyn·s/cm^5" and units["Hr"] in ("bpm",)
+    v, y = datasets.load_split(tmp_path / "train.parquet")
+    assert v.shape[1] == 23 and y.shape[1] == 16
+
+
+def test_scatteritem_parsing():
+    assert datasets.parse_scatteritem("3-of-8") == (2, 8)
+    with pytest.raises(ValueError, match="9-of-8"):
+        datasets.parse_scatteritem("9-of-8")
+    sizes = [datasets.shard_rows(54000, i, 7) for i in range(7)]
+    assert sizes[0].start == 0 and sizes[-1].stop == 54000
+    assert all(a.stop == b.start for a, b in zip(sizes, sizes[1:]))

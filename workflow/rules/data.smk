@@ -1,0 +1,127 @@
+# Training data of the two studies (facts page: priors and splits): sample each
+# prior from the master seed, simulate it in scattered shards, gather and split.
+
+STUDIES = ["structural", "ehr"]
+DATA = f"{RESULTS}/data"
+
+
+wildcard_constraints:
+    study="|".join(STUDIES),
+
+
+rule sample_prior:
+    input:
+        code=package_code("datasets", "priors", "registry"),
+    output:
+        parameters=f"{DATA}/{{study}}/parameters.parquet",
+        shards=scatter.simulate("results/data/{{study}}/shards/parameters_{scatteritem}.parquet"),
+    params:
+        function="cvsim6.datasets:sample_prior",
+        prior=lambda w: config["data"]["studies"][w.study]["prior"],
+        n_samples=lambda w: config["data"]["studies"][w.study]["n_samples"],
+        seed=config["seed"],
+        study=lambda w: w.study,
+    log:
+        f"{LOGS}/sample_prior/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/sample_prior/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule simulate_shard:
+    input:
+        code=package_code("datasets", "solver", "_kernel", "model"),
+        parameters=f"{DATA}/{{study}}/shards/parameters_{{scatteritem}}.parquet",
+    output:
+        output=f"{DATA}/{{study}}/shards/simulated_{{scatteritem}}.parquet",
+    params:
+        function="cvsim6.datasets:simulate_shard",
+        shard=lambda w: w.scatteritem,
+        simulator=config["simulator"],
+    log:
+        f"{LOGS}/simulate_shard/{{study}}_{{scatteritem}}.log",
+    benchmark:
+        f"{BENCHMARKS}/simulate_shard/{{study}}_{{scatteritem}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1500,
+        runtime=30,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule gather_study:
+    input:
+        code=package_code("datasets"),
+        shards=gather.simulate("results/data/{{study}}/shards/simulated_{scatteritem}.parquet"),
+    output:
+        train=f"{DATA}/{{study}}/train.parquet",
+        test=f"{DATA}/{{study}}/test.parquet",
+        validation=f"{DATA}/{{study}}/validation.parquet",
+        failures=f"{DATA}/{{study}}/failures.csv",
+        manifest=f"{DATA}/{{study}}/manifest.json",
+    params:
+        function="cvsim6.datasets:gather_study",
+        study=lambda w: w.study,
+        split=lambda w: config["data"]["studies"][w.study]["split"],
+        prior=lambda w: config["data"]["studies"][w.study]["prior"],
+        max_failure_fraction=config["data"]["max_failure_fraction"],
+        seed=config["seed"],
+        simulator=config["simulator"],
+    log:
+        f"{LOGS}/gather_study/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/gather_study/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule data_histograms:
+    input:
+        code=package_code("datasets", "plots"),
+        train=rules.gather_study.output.train,
+        test=rules.gather_study.output.test,
+        validation=rules.gather_study.output.validation,
+    output:
+        outputs_figure=report(
+            f"{DATA}/{{study}}/outputs_histograms.png",
+            category="Data",
+            subcategory="{study}",
+            caption="../report/data_outputs_histograms.rst",
+        ),
+        inputs_figure=report(
+            f"{DATA}/{{study}}/inputs_histograms.png",
+            category="Data",
+            subcategory="{study}",
+            caption="../report/data_inputs_histograms.rst",
+        ),
+    params:
+        function="cvsim6.datasets:plot_histograms",
+        study=lambda w: w.study,
+    log:
+        f"{LOGS}/data_histograms/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/data_histograms/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

@@ -20,8 +20,14 @@ validate(config, "workflow/schemas/config.schema.yaml")
 report: "workflow/report/workflow.rst"
 
 
+scattergather:
+    simulate=config["data"]["n_shards"],
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/model_tables.smk"
+include: "workflow/rules/stiffness.smk"
+include: "workflow/rules/data.smk"
 
 
 localrules:
@@ -33,3 +39,11 @@ rule all:
     input:
         rules.input_parameter_table.output,
         rules.output_parameter_table.output,
+        rules.stiffness_extremes.output,
+        rules.stiffness_eigenvalue_figure.output,
+        expand(rules.stiffness_radar_figure.output, extreme=["max", "min"]),
+        rules.stiffness_sr_figure.output,
+        rules.stiffness_rk4.output,
+        rules.stiffness_rk4_figure.output,
+        expand(rules.gather_study.output, study=STUDIES),
+        expand(rules.data_histograms.output, study=STUDIES),

@@ -1,0 +1,183 @@
+# Section 3.1 of the paper: stiffness of CVSim-6 at the default parameters.
+# Eigen-analysis of the Jacobian A(t) along the Radau reference trajectory,
+# stiffness ratio SR(t), eigenvectors at the SR extremes, and explicit RK4.
+
+STIFFNESS = f"{RESULTS}/stiffness"
+
+
+rule stiffness_eigen:
+    input:
+        code=package_code("model", "solver", "stiffness"),
+    output:
+        eigenvalues=f"{STIFFNESS}/eigenvalues.csv",
+        trajectory=f"{STIFFNESS}/trajectory.csv",
+    params:
+        function="cvsim6.stiffness:eigen_analysis",
+        rtol=config["stiffness"]["rtol"],
+        samples_per_cycle=config["stiffness"]["samples_per_cycle"],
+        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
+        sr_tol=config["stiffness"]["sr_tol"],
+    log:
+        f"{LOGS}/stiffness_eigen.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_eigen.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_extremes:
+    input:
+        code=package_code("model", "stiffness", "tables"),
+        eigenvalues=rules.stiffness_eigen.output.eigenvalues,
+        trajectory=rules.stiffness_eigen.output.trajectory,
+    output:
+        eigenvectors=f"{STIFFNESS}/eigenvectors_sr_extremes.csv",
+        csv=f"{STIFFNESS}/sr_extremes.csv",
+        md=report(f"{STIFFNESS}/sr_extremes.md", category="Stiffness", caption="../report/stiffness_extremes.rst"),
+    params:
+        function="cvsim6.stiffness:extremes",
+        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
+        sr_tol=config["stiffness"]["sr_tol"],
+    log:
+        f"{LOGS}/stiffness_extremes.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_extremes.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_eigenvalue_figure:
+    input:
+        code=package_code("stiffness_plots"),
+        eigenvalues=rules.stiffness_eigen.output.eigenvalues,
+    output:
+        png=report(f"{STIFFNESS}/eigenvalues.png", category="Stiffness", caption="../report/stiffness_eigenvalues.rst"),
+        pdf=f"{STIFFNESS}/eigenvalues.pdf",
+    params:
+        function="cvsim6.stiffness_plots:eigenvalue_figure",
+        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
+    log:
+        f"{LOGS}/stiffness_eigenvalue_figure.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_eigenvalue_figure.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_radar_figure:
+    input:
+        code=package_code("stiffness_plots"),
+        eigenvectors=rules.stiffness_extremes.output.eigenvectors,
+    output:
+        png=report(
+            f"{STIFFNESS}/radar_sr_{{extreme}}.png", category="Stiffness", caption="../report/stiffness_radar.rst"
+        ),
+        pdf=f"{STIFFNESS}/radar_sr_{{extreme}}.pdf",
+    wildcard_constraints:
+        extreme="max|min",
+    params:
+        function="cvsim6.stiffness_plots:radar_figure",
+        instant=lambda wildcards: f"SR {wildcards.extreme}",
+    log:
+        f"{LOGS}/stiffness_radar_figure_{{extreme}}.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_radar_figure_{{extreme}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_sr_figure:
+    input:
+        code=package_code("stiffness_plots"),
+        eigenvalues=rules.stiffness_eigen.output.eigenvalues,
+        trajectory=rules.stiffness_eigen.output.trajectory,
+    output:
+        png=report(f"{STIFFNESS}/sr_dynamics.png", category="Stiffness", caption="../report/stiffness_sr_dynamics.rst"),
+        pdf=f"{STIFFNESS}/sr_dynamics.pdf",
+    params:
+        function="cvsim6.stiffness_plots:sr_dynamics_figure",
+    log:
+        f"{LOGS}/stiffness_sr_figure.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_sr_figure.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_rk4:
+    input:
+        code=package_code("model", "solver", "stiffness", "tables"),
+    output:
+        series=f"{STIFFNESS}/rk4_series.csv",
+        csv=f"{STIFFNESS}/rk4_errors.csv",
+        md=report(f"{STIFFNESS}/rk4_errors.md", category="Stiffness", caption="../report/stiffness_rk4_table.rst"),
+    params:
+        function="cvsim6.stiffness:rk4_study",
+        rtol=config["stiffness"]["rtol"],
+        rk4_steps=config["stiffness"]["rk4_steps"],
+        samples_per_cycle=config["stiffness"]["samples_per_cycle"],
+    log:
+        f"{LOGS}/stiffness_rk4.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_rk4.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule stiffness_rk4_figure:
+    input:
+        code=package_code("stiffness_plots"),
+        series=rules.stiffness_rk4.output.series,
+    output:
+        png=report(f"{STIFFNESS}/rk4.png", category="Stiffness", caption="../report/stiffness_rk4.rst"),
+        pdf=f"{STIFFNESS}/rk4.pdf",
+    params:
+        function="cvsim6.stiffness_plots:rk4_figure",
+    log:
+        f"{LOGS}/stiffness_rk4_figure.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_rk4_figure.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

@@ -142,3 +142,19 @@ def test_trajectory_frame_has_every_signal(default_params):
     # the aortic valve opens and closes once per cycle
     opens = np.count_nonzero(np.diff(df["valve_aortic"].to_numpy()) == 1)
     assert opens == 4
+
+
+def test_valve_at_equilibrium_is_not_a_failure(tmp_path):
+    """Rows of the default EHR data set where a valve at pressure equilibrium toggles
+    within a step (once flagged as chatter) are accurate and not flagged."""
+    from cvsim6 import datasets, priors as pr
+
+    prior = {"default": [0.7, 1.3], "kinds": {"compliance": [0.2, 1.6], "resistance": [0.2, 1.6]},
+             "parameters": {"Hr": [0.8, 1.6]}}
+    lo, hi = pr.prior_bounds(prior)
+    rng = np.random.default_rng(datasets.study_seed(2024, "ehr"))
+    P = pr.sample_uniform(lo, hi, 54000, rng)[[12003]]
+    out, st = solver.simulate_batch(P)
+    assert st[0] == 0
+    ref, rs = solver.simulate_reference(P)
+    assert rs[0] == 0 and within(out, ref).all()

@@ -62,7 +62,7 @@ STATUS_REASONS = {
     0: "ok",
     1: "non-finite output",
     2: "negative compartment volume",
-    3: "valve chatter (too many switches in one step)",
+    3: "valve chatter (too many switches in more than 1% of the steps)",
     4: "output outside the physiological range (LVEF not in (0,1) or CO <= 0)",
     5: "total volume not conserved",
     6: "integration failed",

@@ -28,6 +28,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/model_tables.smk"
 include: "workflow/rules/stiffness.smk"
 include: "workflow/rules/data.smk"
+include: "workflow/rules/ehr.smk"
 
 
 localrules:
@@ -47,3 +48,4 @@ rule all:
         rules.stiffness_rk4_figure.output,
         expand(rules.gather_study.output, study=STUDIES),
         expand(rules.data_histograms.output, study=STUDIES),
+        rules.ehr_patients.output,

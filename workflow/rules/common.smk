@@ -22,3 +22,8 @@ def package_code(*modules):
     ``code`` to the function.
     """
     return [f"{PACKAGE_DIR}/{module}.py" for module in modules]
+
+
+def ehr_csv(wildcards=None):
+    """The EHR CSV: config ehr_data.path if set, else the copy downloaded into resources/."""
+    return config["ehr_data"]["path"] or "resources/EHR_dataset.csv"

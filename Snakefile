@@ -29,6 +29,7 @@ include: "workflow/rules/model_tables.smk"
 include: "workflow/rules/stiffness.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/ehr.smk"
+include: "workflow/rules/training.smk"
 
 
 localrules:
@@ -49,3 +50,4 @@ rule all:
         expand(rules.gather_study.output, study=STUDIES),
         expand(rules.data_histograms.output, study=STUDIES),
         rules.ehr_patients.output,
+        [training_targets(study) for study in STUDIES],

@@ -27,3 +27,20 @@ def package_code(*modules):
 def ehr_csv(wildcards=None):
     """The EHR CSV: config ehr_data.path if set, else the copy downloaded into resources/."""
     return config["ehr_data"]["path"] or "resources/EHR_dataset.csv"
+
+
+def noise_tag(delta):
+    """File-name tag of a training-noise level, e.g. 0.5 -> '0.5', 1.0 -> '1'."""
+    return f"{float(delta):g}"
+
+
+def training_targets(study):
+    """Every trained model, loss curve and table of ``study`` for the config in use."""
+    deltas = [noise_tag(d) for d in config["training"]["studies"][study]["noise_levels"]]
+    return (
+        [f"{MODELS}/{study}/emulator.pt", f"{TRAINING}/{study}/emulator_losses.png",
+         f"{TABLES}/{study}_emulator_validation.md", f"{TABLES}/{study}_architectures.md",
+         f"{TABLES}/{study}_schedules.md"]
+        + [f"{MODELS}/{study}/{stage}_delta{d}.pt" for d in deltas for stage in ("flow", "encoder_decoder")]
+        + [f"{TRAINING}/{study}/{stage}_delta{d}_losses.png" for d in deltas for stage in ("flow", "encoder_decoder")]
+    )

@@ -1,0 +1,525 @@
+"""InVAErt networks for CVSim-6: emulator, Real-NVP density estimator, encoder/decoder.
+
+Shapes and spaces
+-----------------
+* ``v``: model parameters, (N, 23), registry order; ``y``: clinical outputs, (N, 16).
+* Every network works in *standardized* space (training-set mean/std, see
+  :class:`Standardizer`); each model carries its own ``x_scaler``/``y_scaler`` buffers, so a
+  saved model file is self-contained. Methods named ``*_physical``/``predict``/``invert``
+  take and return physical (clinical) units.
+
+Components (paper section 2.2, appendix B)
+------------------------------------------
+* :class:`Emulator` ``NN_e``: MLP 23 -> 16, SiLU (hidden 60 x 8 layers = 24,376 parameters;
+  hidden 80 = 42,096).
+* :class:`RealNVP` ``NN_f``: affine coupling flow on the 16 outputs. Direction convention:
+  ``forward`` maps **data -> latent** (y -> z) and returns ``log|det dz/dy|``; ``inverse``
+  maps latent -> data and returns ``log|det dy/dz|``. ``log_prob(y) = log N(z; 0, I) +
+  log|det dz/dy|``, identical to the paper's ``log pi_0(z^(0)) - sum_l log|det dz^(l)/dz^(l-1)|``
+  whose layers run latent -> data.
+* :class:`EncoderDecoder` ``NN_v`` + ``NN_d``: encoder MLP 23 -> 2*19 (mean, log-variance of
+  ``w``), decoder MLP (16 + 19) -> 23, SiLU.
+
+Losses (:func:`emulator_loss`, :func:`flow_nll`, :func:`encoder_decoder_loss`) implement the
+paper's equation with sums over samples replaced by means over the minibatch.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .registry import N_OUTPUTS, N_PARAMETERS
+
+#: Version tag stored in every saved model file.
+FORMAT = "cvsim6-invaert/1"
+
+_ACTIVATIONS: dict[str, type[nn.Module]] = {
+    "silu": nn.SiLU, "tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU, "elu": nn.ELU,
+}
+
+
+def count_parameters(module: nn.Module) -> int:
+    """Number of trainable parameters of ``module`` (buffers such as scalers excluded)."""
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)
+
+
+def _activation(activation: str | type[nn.Module] | Callable[[], nn.Module]) -> Callable[[], nn.Module]:
+    if isinstance(activation, str):
+        try:
+            return _ACTIVATIONS[activation.lower()]
+        except KeyError:
+            raise ValueError(f"unknown activation {activation!r}; one of {sorted(_ACTIVATIONS)}") from None
+    return activation
+
+
+class MLP(nn.Sequential):
+    """Fully connected network with ``n_layers`` Linear layers in total.
+
+    ``Linear(n_in, hidden), act, [Linear(hidden, hidden), act] * (n_layers - 2),
+    Linear(hidden, n_out)``; no activation after the last layer. ``activation`` is a name
+    ("silu", "tanh", "relu", ...) or a module class/factory.
+    """
+
+    def __init__(self, n_in: int, n_out: int, hidden: int, n_layers: int,
+                 activation: str | type[nn.Module] | Callable[[], nn.Module] = nn.SiLU):
+        if n_layers < 1:
+            raise ValueError("n_layers must be >= 1")
+        act = _activation(activation)
+        if n_layers == 1:
+            layers: list[nn.Module] = [nn.Linear(n_in, n_out)]
+        else:
+            layers = [nn.Linear(n_in, hidden), act()]
+            for _ in range(n_layers - 2):
+                layers += [nn.Linear(hidden, hidden), act()]
+            layers.append(nn.Linear(hidden, n_out))
+        super().__init__(*layers)
+
+
+class Standardizer(nn.Module):
+    """Affine standardization ``(x - mean) / std`` with mean/std stored as buffers.
+
+    Columns with zero (or non-finite) std get std 1. ``transform``/``inverse`` accept numpy
+    arrays (returned as float64 numpy) or tensors (computed in the tensor's dtype/device).
+    """
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("std", torch.ones(dim))
+
+    @torch.no_grad()
+    def fit(self, data: np.ndarray | torch.Tensor) -> "Standardizer":
+        """Set mean and (population) std from ``data`` (N, dim); returns self."""
+        x = np.asarray(data.detach().cpu() if isinstance(data, torch.Tensor) else data, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != self.mean.numel():
+            raise ValueError(f"expected (N, {self.mean.numel()}) data, got {x.shape}")
+        mean, std = x.mean(axis=0), x.std(axis=0)
+        std = np.where(np.isfinite(std) & (std > 0), std, 1.0)
+        self.mean.copy_(torch.as_tensor(mean))
+        self.std.copy_(torch.as_tensor(std))
+        return self
+
+    def transform(self, x):
+        """Physical -> standardized."""
+        if isinstance(x, torch.Tensor):
+            return (x - self.mean.to(x)) / self.std.to(x)
+        return (np.asarray(x, dtype=np.float64) - self.mean.double().cpu().numpy()) / self.std.double().cpu().numpy()
+
+    def inverse(self, x):
+        """Standardized -> physical."""
+        if isinstance(x, torch.Tensor):
+            return x * self.std.to(x) + self.mean.to(x)
+        return np.asarray(x, dtype=np.float64) * self.std.double().cpu().numpy() + self.mean.double().cpu().numpy()
+
+
+def _module_dtype_device(module: nn.Module) -> tuple[torch.dtype, torch.device]:
+    p = next(module.parameters())
+    return p.dtype, p.device
+
+
+def _as_model_tensor(module: nn.Module, x) -> tuple[torch.Tensor, bool]:
+    """Tensor on the module's device/dtype, and whether the input was numpy."""
+    dtype, device = _module_dtype_device(module)
+    if isinstance(x, torch.Tensor):
+        return x.to(device=device, dtype=dtype), False
+    return torch.as_tensor(np.array(x, dtype=np.float64), device=device).to(dtype), True
+
+
+# ----------------------------------------------------------------------------- emulator
+class Emulator(nn.Module):
+    """``NN_e``: standardized parameters (N, n_in) -> standardized outputs (N, n_out)."""
+
+    kind = "emulator"
+
+    def __init__(self, hidden: int = 60, layers: int = 8, n_in: int = N_PARAMETERS,
+                 n_out: int = N_OUTPUTS, activation: str = "silu"):
+        super().__init__()
+        self.config = dict(hidden=int(hidden), layers=int(layers), n_in=int(n_in), n_out=int(n_out),
+                           activation=str(activation))
+        self.net = MLP(n_in, n_out, hidden, layers, activation)
+        self.x_scaler = Standardizer(n_in)
+        self.y_scaler = Standardizer(n_out)
+
+    def forward(self, v_std: torch.Tensor) -> torch.Tensor:
+        return self.net(v_std)
+
+    @torch.no_grad()
+    def predict(self, v):
+        """Physical parameters (N, 23) -> physical outputs (N, 16); numpy in, numpy out."""
+        t, was_numpy = _as_model_tensor(self, v)
+        was_training = self.training
+        self.eval()
+        y = self.y_scaler.inverse(self(self.x_scaler.transform(t)))
+        self.train(was_training)
+        return y.double().cpu().numpy() if was_numpy else y
+
+
+# ----------------------------------------------------------------------------- flow
+class AffineCoupling(nn.Module):
+    """Real-NVP affine coupling on a split of the features into two halves.
+
+    With halves ``a = x[:, :d]``, ``b = x[:, d:]``: if ``swap`` is False, ``a`` conditions and
+    ``b`` is transformed, ``b' = b * exp(s(a)) + t(a)``; if True the roles are exchanged.
+    ``s`` uses tanh, ``t`` ReLU activations, both MLPs with ``layers`` Linear layers and no
+    output activation (as in the paper's code). log|det| = sum(s).
+    """
+
+    def __init__(self, dim: int, hidden: int, layers: int, swap: bool):
+        super().__init__()
+        self.d = dim // 2
+        self.swap = bool(swap)
+        n_cond, n_trans = (dim - self.d, self.d) if swap else (self.d, dim - self.d)
+        self.s = MLP(n_cond, n_trans, hidden, layers, nn.Tanh)
+        self.t = MLP(n_cond, n_trans, hidden, layers, nn.ReLU)
+
+    def _split(self, x):
+        a, b = x[:, : self.d], x[:, self.d:]
+        return (b, a) if self.swap else (a, b)  # (conditioner, transformed)
+
+    def _join(self, cond, trans):
+        return torch.cat((trans, cond) if self.swap else (cond, trans), dim=1)
+
+    def forward(self, x):
+        cond, trans = self._split(x)
+        s = self.s(cond)
+        return self._join(cond, trans * torch.exp(s) + self.t(cond)), s.sum(dim=1)
+
+    def inverse(self, z):
+        cond, trans = self._split(z)
+        s = self.s(cond)
+        return self._join(cond, (trans - self.t(cond)) * torch.exp(-s)), -s.sum(dim=1)
+
+
+class FlowBatchNorm(nn.Module):
+    """Invertible batch normalization (Dinh et al. 2017), data -> latent direction.
+
+    ``z = exp(log_gamma) * (x - mean) / sqrt(var + eps) + beta``, 2*dim parameters. In train
+    mode ``forward`` uses the batch mean and (biased) variance and updates the running stats
+    (torch convention: ``running = (1 - momentum) * running + momentum * batch``, unbiased
+    batch variance); in eval mode it uses the running stats. ``inverse`` always uses the running
+    stats (exact inverse of the eval-mode forward; sample in eval mode).
+    """
+
+    def __init__(self, dim: int, momentum: float = 0.1, eps: float = 1e-5):
+        super().__init__()
+        self.momentum, self.eps = float(momentum), float(eps)
+        self.log_gamma = nn.Parameter(torch.zeros(dim))
+        self.beta = nn.Parameter(torch.zeros(dim))
+        self.register_buffer("running_mean", torch.zeros(dim))
+        self.register_buffer("running_var", torch.ones(dim))
+
+    def forward(self, x):
+        if self.training:
+            mean = x.mean(dim=0)
+            var = x.var(dim=0, unbiased=False)
+            with torch.no_grad():
+                n = x.shape[0]
+                unbiased = var * (n / max(n - 1, 1))
+                self.running_mean.lerp_(mean.detach(), self.momentum)
+                self.running_var.lerp_(unbiased.detach(), self.momentum)
+        else:
+            mean, var = self.running_mean, self.running_var
+        z = torch.exp(self.log_gamma) * (x - mean) / torch.sqrt(var + self.eps) + self.beta
+        logdet = (self.log_gamma - 0.5 * torch.log(var + self.eps)).sum().expand(x.shape[0])
+        return z, logdet
+
+    def inverse(self, z):
+        mean, var = self.running_mean, self.running_var
+        x = (z - self.beta) * torch.exp(-self.log_gamma) * torch.sqrt(var + self.eps) + mean
+        logdet = (0.5 * torch.log(var + self.eps) - self.log_gamma).sum().expand(z.shape[0])
+        return x, logdet
+
+
+class RealNVP(nn.Module):
+    """``NN_f``: Real-NVP density estimator of the standardized outputs, standard normal base.
+
+    ``blocks`` affine couplings alternating which half (dim//2) is transformed, each followed by
+    a :class:`FlowBatchNorm` when ``batchnorm`` (order in the data -> latent direction:
+    coupling_1, [bn_1], coupling_2, [bn_2], ...). Structural study: hidden 24, 16 blocks, no
+    BatchNorm = 51,712 parameters; EHR: hidden 18, 10 blocks, BatchNorm = 20,280.
+    """
+
+    kind = "flow"
+
+    def __init__(self, dim: int = N_OUTPUTS, hidden: int = 24, blocks: int = 16,
+                 layers_per_block: int = 4, batchnorm: bool = False):
+        super().__init__()
+        self.config = dict(dim=int(dim), hidden=int(hidden), blocks=int(blocks),
+                           layers_per_block=int(layers_per_block), batchnorm=bool(batchnorm))
+        self.dim = int(dim)
+        layers: list[nn.Module] = []
+        for k in range(blocks):
+            layers.append(AffineCoupling(dim, hidden, layers_per_block, swap=bool(k % 2)))
+            if batchnorm:
+                layers.append(FlowBatchNorm(dim))
+        self.layers = nn.ModuleList(layers)
+        self.y_scaler = Standardizer(dim)
+
+    def forward(self, y_std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Data -> latent: ``(z (N, dim), log|det dz/dy| (N,))``."""
+        logdet = y_std.new_zeros(y_std.shape[0])
+        z = y_std
+        for layer in self.layers:
+            z, ld = layer(z)
+            logdet = logdet + ld
+        return z, logdet
+
+    def inverse(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Latent -> data: ``(y_std (N, dim), log|det dy/dz| (N,))``."""
+        logdet = z.new_zeros(z.shape[0])
+        y = z
+        for layer in reversed(self.layers):
+            y, ld = layer.inverse(y)
+            logdet = logdet + ld
+        return y, logdet
+
+    def log_prob(self, y_std: torch.Tensor) -> torch.Tensor:
+        """log density of standardized outputs, (N,): ``log N(z; 0, I) + log|det dz/dy|``."""
+        z, logdet = self(y_std)
+        base = -0.5 * (z * z).sum(dim=1) - 0.5 * self.dim * math.log(2.0 * math.pi)
+        return base + logdet
+
+    @torch.no_grad()
+    def log_prob_physical(self, y):
+        """log density of physical outputs (N, 16), including the standardization Jacobian.
+
+        Runs in eval mode. numpy in -> numpy out.
+        """
+        t, was_numpy = _as_model_tensor(self, y)
+        was_training = self.training
+        self.eval()
+        lp = self.log_prob(self.y_scaler.transform(t)) - torch.log(self.y_scaler.std.to(t)).sum()
+        self.train(was_training)
+        return lp.double().cpu().numpy() if was_numpy else lp
+
+    @torch.no_grad()
+    def sample(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """``n`` standardized samples (n, dim), drawn in eval mode (running BatchNorm stats).
+
+        ``z ~ N(0, I)`` is drawn on the generator's device (CPU if ``generator`` is None) and
+        moved to the model's device.
+        """
+        dtype, device = _module_dtype_device(self)
+        gdev = generator.device if generator is not None else torch.device("cpu")
+        z = torch.randn(n, self.dim, generator=generator, device=gdev, dtype=dtype).to(device)
+        was_training = self.training
+        self.eval()
+        y, _ = self.inverse(z)
+        self.train(was_training)
+        return y
+
+    @torch.no_grad()
+    def sample_physical(self, n: int, generator: torch.Generator | None = None) -> np.ndarray:
+        """``n`` samples in physical units, numpy (n, dim) float64."""
+        return self.y_scaler.inverse(self.sample(n, generator)).double().cpu().numpy()
+
+
+# ----------------------------------------------------------------------------- encoder/decoder
+class EncoderDecoder(nn.Module):
+    """``NN_v`` (encoder) and ``NN_d`` (decoder).
+
+    Encoder: standardized v (N, 23) -> [mu (N, latent), log sigma^2 (N, latent)] (first half
+    mean, second half log-variance). Decoder: [y_std (N, 16), w (N, latent)] -> v_std (N, 23).
+    Defaults (paper): encoder 32 x 6 = 6,246, decoder 64 x 6 = 20,439 parameters, latent 19.
+    """
+
+    kind = "encoder_decoder"
+
+    def __init__(self, n_params: int = N_PARAMETERS, n_outputs: int = N_OUTPUTS, latent_dim: int = 19,
+                 encoder_hidden: int = 32, encoder_layers: int = 6, decoder_hidden: int = 64,
+                 decoder_layers: int = 6, activation: str = "silu"):
+        super().__init__()
+        self.config = dict(n_params=int(n_params), n_outputs=int(n_outputs), latent_dim=int(latent_dim),
+                           encoder_hidden=int(encoder_hidden), encoder_layers=int(encoder_layers),
+                           decoder_hidden=int(decoder_hidden), decoder_layers=int(decoder_layers),
+                           activation=str(activation))
+        self.latent_dim = int(latent_dim)
+        self.encoder = MLP(n_params, 2 * latent_dim, encoder_hidden, encoder_layers, activation)
+        self.decoder = MLP(n_outputs + latent_dim, n_params, decoder_hidden, decoder_layers, activation)
+        self.x_scaler = Standardizer(n_params)
+        self.y_scaler = Standardizer(n_outputs)
+
+    def encode(self, v_std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(mu, logvar)``, each (N, latent)."""
+        h = self.encoder(v_std)
+        return h[:, : self.latent_dim], h[:, self.latent_dim:]
+
+    def decode(self, y_std: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Standardized parameters (N, 23) from standardized outputs and latent w."""
+        return self.decoder(torch.cat((y_std, w), dim=1))
+
+    def forward(self, v_std: torch.Tensor, y_std: torch.Tensor, eps: torch.Tensor | None = None):
+        """``(v_hat_std, mu, logvar)`` with ``w = mu + eps * sigma`` (``w = mu`` if eps is None)."""
+        mu, logvar = self.encode(v_std)
+        w = mu if eps is None else mu + eps * torch.exp(0.5 * logvar)
+        return self.decode(y_std, w), mu, logvar
+
+    @torch.no_grad()
+    def invert(self, y, w):
+        """Physical outputs (N, 16) and latent w (N, latent) -> physical parameters (N, 23)."""
+        t, was_numpy = _as_model_tensor(self, y)
+        wt, _ = _as_model_tensor(self, w)
+        was_training = self.training
+        self.eval()
+        v = self.x_scaler.inverse(self.decode(self.y_scaler.transform(t), wt))
+        self.train(was_training)
+        return v.double().cpu().numpy() if was_numpy else v
+
+
+# ----------------------------------------------------------------------------- losses
+def emulator_loss(y_pred_std: torch.Tensor, y_std: torch.Tensor) -> torch.Tensor:
+    """Emulator MSE in standardized space: mean over batch and the 16 outputs (scalar)."""
+    return torch.mean((y_pred_std - y_std) ** 2)
+
+
+def flow_nll(flow: RealNVP, y_std: torch.Tensor) -> torch.Tensor:
+    """Negative log-likelihood of standardized outputs, mean over the batch (scalar, nats)."""
+    return -flow.log_prob(y_std).mean()
+
+
+def kl_divergence(mu: torch.Tensor, logvar: torch.Tensor) -> torch.Tensor:
+    """``1/2 sum_k (mu^2 + sigma^2 - log sigma^2 - 1)`` per sample, mean over the batch."""
+    return 0.5 * (mu * mu + torch.exp(logvar) - logvar - 1.0).sum(dim=1).mean()
+
+
+def squared_error(a: torch.Tensor, b: torch.Tensor, reduction: str = "sum") -> torch.Tensor:
+    """Reduced squared error. ``"sum"``: ``||a - b||^2`` per sample, mean over the batch (the
+    paper's equation with the sum over samples replaced by a mean); ``"mse"``: mean over batch
+    *and* components (``nn.MSELoss``, as in the paper's public code)."""
+    d = (a - b) ** 2
+    if reduction == "sum":
+        return d.sum(dim=1).mean()
+    if reduction == "mse":
+        return d.mean()
+    raise ValueError(f"reduction must be 'sum' or 'mse', got {reduction!r}")
+
+
+def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torch.Tensor,
+                         eps: torch.Tensor, reevaluate: Callable[[torch.Tensor], torch.Tensor] | None,
+                         beta_d: float, beta_v: float, beta_r: float, reduction: str = "sum"):
+    """Encoder/decoder loss of the paper, means over the minibatch.
+
+    ``beta_d * E||v - NN_d(y', w)||^2 + beta_v * E[1/2 sum_k(mu^2 + sigma^2 - log sigma^2 - 1)]
+    + beta_r * E||y' - NN_e(NN_d(y', w))||^2`` with ``w = mu + eps * sigma``. ``y_std`` is the
+    (noisy) standardized y'; ``eps`` (N, latent) standard normal; ``reevaluate`` maps decoded
+    standardized v to standardized y through the frozen emulator (None or beta_r == 0 skips it).
+    ``reduction`` applies to the two squared-error terms (see :func:`squared_error`); the KL
+    term is always summed over latent dimensions. Returns ``(total, parts)`` where ``parts`` has
+    the unweighted ``decoder``, ``kl`` and ``reeval`` terms (detached tensors).
+    """
+    v_hat, mu, logvar = model(v_std, y_std, eps)
+    dec = squared_error(v_hat, v_std, reduction)
+    kl = kl_divergence(mu, logvar)
+    total = beta_d * dec + beta_v * kl
+    if reevaluate is not None and beta_r != 0:
+        rec = squared_error(reevaluate(v_hat), y_std, reduction)
+        total = total + beta_r * rec
+    else:
+        rec = torch.zeros((), device=v_std.device, dtype=v_std.dtype)
+    return total, {"decoder": dec.detach(), "kl": kl.detach(), "reeval": rec.detach()}
+
+
+def make_reevaluator(emulator: Emulator, model: EncoderDecoder) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``v_std`` (model's x scaling) -> emulator prediction in the model's y scaling.
+
+    Converts between the two models' standardizations with exact affine maps (identity when
+    both were fitted on the same training data). The emulator is not modified; freeze it
+    (``requires_grad_(False)``, ``eval()``) before training.
+    """
+    with torch.no_grad():
+        xa = model.x_scaler.std / emulator.x_scaler.std.to(model.x_scaler.std)
+        xb = (model.x_scaler.mean - emulator.x_scaler.mean.to(model.x_scaler.mean)) / emulator.x_scaler.std.to(model.x_scaler.std)
+        ya = emulator.y_scaler.std.to(model.y_scaler.std) / model.y_scaler.std
+        yb = (emulator.y_scaler.mean.to(model.y_scaler.mean) - model.y_scaler.mean) / model.y_scaler.std
+        identity = bool(torch.all(xa == 1) and torch.all(xb == 0) and torch.all(ya == 1) and torch.all(yb == 0))
+
+    def reevaluate(v_std: torch.Tensor) -> torch.Tensor:
+        if identity:
+            return emulator(v_std)
+        return emulator(v_std * xa.to(v_std) + xb.to(v_std)) * ya.to(v_std) + yb.to(v_std)
+
+    return reevaluate
+
+
+# ----------------------------------------------------------------------------- noise
+def draw_noise(n: int, noise_level: float, generator: torch.Generator | None = None,
+               std: np.ndarray | None = None, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+    """Measurement noise ``eta ~ N(0, diag((delta * s)^2))`` in physical units, (n, 16), CPU.
+
+    ``s`` defaults to :func:`cvsim6.registry.noise_std`. ``noise_level`` (delta) 0 returns
+    zeros without consuming random numbers.
+    """
+    from .registry import noise_std as _noise_std
+
+    s = np.asarray(_noise_std() if std is None else std, dtype=np.float64)
+    if noise_level == 0:
+        return torch.zeros(n, s.size, dtype=dtype)
+    eps = torch.randn(n, s.size, generator=generator, dtype=dtype)
+    return eps * torch.as_tensor(noise_level * s, dtype=dtype)
+
+
+# ----------------------------------------------------------------------------- save / load
+MODEL_CLASSES: dict[str, type[nn.Module]] = {
+    Emulator.kind: Emulator, RealNVP.kind: RealNVP, EncoderDecoder.kind: EncoderDecoder,
+}
+
+
+def build_model(kind: str, config: dict) -> nn.Module:
+    """Instantiate a model from its ``kind`` and architecture ``config``."""
+    try:
+        cls = MODEL_CLASSES[kind]
+    except KeyError:
+        raise ValueError(f"unknown model kind {kind!r}; one of {sorted(MODEL_CLASSES)}") from None
+    return cls(**config)
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (np.ndarray, torch.Tensor)):
+        return obj.tolist()
+    return str(obj)
+
+
+def save_model(model: nn.Module, path: str | Path, info: dict | None = None) -> None:
+    """Save ``model`` (weights, scalers, architecture) to one ``.pt`` file.
+
+    The file is ``torch.save`` of ``{"format", "kind", "config", "state_dict", "info"}``;
+    ``info`` is optional JSON-like metadata (hyperparameters, seed, final losses ...).
+    Written atomically (temporary file + rename).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": FORMAT,
+        "kind": model.kind,
+        "config": dict(model.config),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        # plain JSON types only, so that the file loads with ``weights_only=True``
+        "info": json.loads(json.dumps(info or {}, default=_json_default)),
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+
+
+def load_model(path: str | Path, map_location: str | torch.device = "cpu", with_info: bool = False):
+    """Rebuild a model saved by :func:`save_model`, in eval mode on ``map_location``.
+
+    With ``with_info=True`` returns ``(model, info)``.
+    """
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    if payload.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a {FORMAT} model file (format={payload.get('format')!r})")
+    model = build_model(payload["kind"], payload["config"])
+    dtype = next(iter(payload["state_dict"].values())).dtype
+    model.to(dtype=dtype)
+    model.load_state_dict(payload["state_dict"])
+    model.to(map_location).eval()
+    return (model, payload.get("info", {})) if with_info else model

@@ -1,0 +1,271 @@
+"""Training stages (cvsim6.training): losses fall, noise injection, outputs, resume, seeding."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from cvsim6 import networks as nw
+from cvsim6 import training as tr
+from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
+
+EMU = dict(hidden=32, layers=3, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
+FLOW = dict(hidden=16, blocks=4, layers_per_block=4, batchnorm=True, epochs=40, batch_size=64, lr=5e-3,
+            lr_step=20, lr_gamma=0.7, weight_decay=1e-5)
+ENCDEC = dict(latent_dim=7, encoder_hidden=16, encoder_layers=3, decoder_hidden=32, decoder_layers=3,
+              beta_d=1.0, beta_v=0.05, beta_r=0.5, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _synthetic(n: int, seed: int) -> pd.DataFrame:
+    """Smooth map 23 -> 16 with outputs on the scale of the registry noise (x 10)."""
+    rng = np.random.default_rng(seed)
+    v = default_parameters() * rng.uniform(0.7, 1.3, size=(n, 23))
+    u = (v / default_parameters() - 1.0) / 0.3  # in [-1, 1]
+    a = np.random.default_rng(123).normal(size=(23, 16)) / np.sqrt(23)
+    y = np.tanh(u @ a) + 0.3 * np.sin(2 * u[:, :16])
+    y = 100.0 + 10.0 * noise_std() * y
+    y[:, 0] = v[:, 0]  # output Hr is the input Hr: one shared column, as in the real datasets
+    df = pd.DataFrame(v, columns=list(PARAMETER_NAMES))
+    for j, name in enumerate(OUTPUT_NAMES):
+        df[name] = y[:, j]
+    assert df.shape[1] == 38
+    return df
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("data")
+    _synthetic(400, 1).to_parquet(d / "train.parquet")
+    _synthetic(100, 2).to_parquet(d / "test.parquet")
+    return d / "train.parquet", d / "test.parquet"
+
+
+def _paths(d, name):
+    return dict(model=str(d / f"{name}.pt"), losses=str(d / f"{name}.csv"), figure=str(d / f"{name}.png"))
+
+
+@pytest.fixture(scope="module")
+def emulator(data, tmp_path_factory):
+    d = tmp_path_factory.mktemp("emu")
+    res = tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU, seed=0, device="cpu", progress=False,
+                            **_paths(d, "emulator"))
+    return d, res
+
+
+# ----------------------------------------------------------------------------- losses fall
+def test_emulator_trains(emulator, data):
+    d, res = emulator
+    assert res["completed"] and res["epochs_done"] == EMU["epochs"]
+    df = pd.read_csv(d / "emulator.csv")
+    assert list(df.columns) == ["epoch", "train_loss", "test_loss", "lr", "seconds"]
+    assert df["epoch"].tolist() == list(range(1, EMU["epochs"] + 1))
+    assert df["test_loss"].iloc[-1] < 0.25 * df["test_loss"].iloc[0]
+    assert df["train_loss"].iloc[-1] < 0.25 * df["train_loss"].iloc[0]
+    # StepLR stepped per epoch: lr of epoch e is lr * gamma^floor((e-1)/step)
+    expected = EMU["lr"] * EMU["lr_gamma"] ** ((df["epoch"] - 1) // EMU["lr_step"])
+    assert np.allclose(df["lr"], expected)
+    assert (d / "emulator.png").stat().st_size > 10_000
+    model, info = nw.load_model(d / "emulator.pt", with_info=True)
+    assert info["stage"] == "emulator" and info["noise_level"] == 0.0 and info["hyper"]["hidden"] == 32
+    # physical-units prediction is better than predicting the mean
+    test = pd.read_parquet(data[1])
+    v, y = test[list(PARAMETER_NAMES)].to_numpy(), test[list(OUTPUT_NAMES)].to_numpy()
+    err = ((model.predict(v) - y) / model.y_scaler.std.double().numpy()) ** 2  # training-set scaling
+    assert err.mean() < 0.25
+    assert info["final_test_loss"] == pytest.approx(err.mean(), rel=1e-3)
+
+
+def test_flow_trains(data, tmp_path):
+    res = tr.train_flow(str(data[0]), str(data[1]), hyper=FLOW, seed=0, noise_level=0.5, device="cpu",
+                        progress=False, **_paths(tmp_path, "flow"))
+    assert res["completed"]
+    df = pd.read_csv(tmp_path / "flow.csv")
+    assert df["train_loss"].iloc[-1] < df["train_loss"].iloc[0] - 3.0  # nats
+    assert df["test_loss"].iloc[-1] < df["test_loss"].iloc[0] - 0.75  # small data: overfits soon
+    flow = nw.load_model(tmp_path / "flow.pt")
+    assert isinstance(flow, nw.RealNVP) and flow.config["batchnorm"]
+    y = flow.sample_physical(200, torch.Generator().manual_seed(0))
+    assert y.shape == (200, 16) and np.isfinite(y).all()
+    assert (tmp_path / "flow.png").exists()
+
+
+def test_encoder_decoder_trains(data, emulator, tmp_path):
+    res = tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                   hyper=ENCDEC, seed=0, noise_level=0.25, device="cpu", progress=False,
+                                   **_paths(tmp_path, "encdec"))
+    assert res["completed"]
+    df = pd.read_csv(tmp_path / "encdec.csv")
+    for p in ("decoder", "kl", "reeval"):
+        assert f"train_{p}" in df and f"test_{p}" in df
+    assert df["train_loss"].iloc[-1] < 0.5 * df["train_loss"].iloc[0]
+    assert df["test_loss"].iloc[-1] < 0.5 * df["test_loss"].iloc[0]
+    assert df["test_decoder"].iloc[-1] < 0.6 * df["test_decoder"].iloc[0]
+    assert df["test_reeval"].iloc[-1] < df["test_reeval"].iloc[0]
+    # total = beta_d * decoder + beta_v * kl + beta_r * reeval (test losses: deterministic terms)
+    total = ENCDEC["beta_d"] * df["test_decoder"] + ENCDEC["beta_v"] * df["test_kl"] + ENCDEC["beta_r"] * df["test_reeval"]
+    assert np.allclose(total, df["test_loss"], rtol=1e-5)
+    model = nw.load_model(tmp_path / "encdec.pt")
+    assert isinstance(model, nw.EncoderDecoder)
+
+
+# ----------------------------------------------------------------------------- noise injection
+def _stages(noise_level):
+    rng = np.random.default_rng(5)
+    n = 20_000
+    v, y = rng.normal(size=(n, 23)), rng.normal(size=(n, 16))
+    flow = nw.RealNVP(hidden=4, blocks=2)
+    flow.y_scaler.std.copy_(torch.as_tensor(np.linspace(0.5, 2000.0, 16)))
+    encdec = nw.EncoderDecoder(latent_dim=3, encoder_hidden=4, encoder_layers=2, decoder_hidden=4, decoder_layers=2)
+    encdec.y_scaler.load_state_dict(flow.y_scaler.state_dict())
+    emu = nw.Emulator(hidden=4, layers=2)
+    g = torch.Generator().manual_seed(0)
+    cpu = torch.device("cpu")
+    return (tr.FlowStage(flow, y, y[:10], noise_level, g, cpu),
+            tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], noise_level, dict(ENCDEC, reduction="sum"), g, cpu),
+            tr.EmulatorStage(emu, v, y, v[:10], y[:10], cpu))
+
+
+@pytest.mark.parametrize("delta", [0.5, 2.0])
+def test_noise_injection_std_and_fresh_draws(delta):
+    flow_stage, encdec_stage, emu_stage = _stages(delta)
+    g = torch.Generator().manual_seed(1)
+    for stage in (flow_stage, encdec_stage):
+        scale = stage.model.y_scaler.std.double()
+        stage.begin_epoch(g)
+        eta1 = (stage.y_epoch.double() - stage.y_tr.double()) * scale  # back to physical units
+        assert np.allclose(eta1.std(0).numpy(), delta * noise_std(), rtol=0.03)
+        assert np.all(np.abs(eta1.mean(0).numpy()) < 0.05 * delta * noise_std())
+        stage.begin_epoch(g)
+        eta2 = (stage.y_epoch.double() - stage.y_tr.double()) * scale
+        assert not torch.allclose(eta1, eta2)  # a fresh draw every epoch
+        assert abs(np.corrcoef(eta1[:, 0], eta2[:, 0])[0, 1]) < 0.05
+    # the test split gets one fixed noise draw, the re-evaluation target is the noisy y'
+    assert not torch.equal(flow_stage.y_te, torch.as_tensor(np.random.default_rng(5).normal(size=(20_000, 16))[:10]).float())
+    # never for the emulator
+    emu_stage.begin_epoch(g)
+    assert emu_stage.y_epoch is emu_stage.y_tr
+
+
+def test_zero_noise_is_clean():
+    flow_stage, encdec_stage, _ = _stages(0.0)
+    g = torch.Generator().manual_seed(2)
+    state = g.get_state()
+    flow_stage.begin_epoch(g)
+    assert torch.equal(flow_stage.y_epoch, flow_stage.y_tr)
+    assert torch.equal(g.get_state(), state)  # no random numbers consumed
+    encdec_stage.begin_epoch(g)
+    assert torch.equal(encdec_stage.y_epoch, encdec_stage.y_tr)
+    assert encdec_stage.eps_epoch.shape == (20_000, 3)
+
+
+# ----------------------------------------------------------------------------- resume / seeding
+def _state(path):
+    return torch.load(path, weights_only=True)["state_dict"]
+
+
+def _assert_same_weights(a, b):
+    sa, sb = _state(a), _state(b)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        assert torch.equal(sa[k], sb[k]), k
+
+
+class _Killed(RuntimeError):
+    pass
+
+
+@pytest.mark.parametrize("stage", ["emulator", "flow", "encoder_decoder"])
+def test_resume_after_kill_gives_identical_weights(stage, data, emulator, tmp_path, monkeypatch):
+    hyper = {"emulator": EMU, "flow": FLOW, "encoder_decoder": ENCDEC}[stage] | {"epochs": 7}
+    fn = {"emulator": tr.train_emulator, "flow": tr.train_flow, "encoder_decoder": tr.train_encoder_decoder}[stage]
+    extra = {} if stage == "emulator" else {"noise_level": 0.5}
+    if stage == "encoder_decoder":
+        extra["emulator"] = str(emulator[0] / "emulator.pt")
+
+    def run(d, **kw):
+        d.mkdir(exist_ok=True)
+        return fn(str(data[0]), str(data[1]), hyper=hyper, seed=3, device="cpu", progress=False,
+                  checkpoint_every=2, **extra, **_paths(d, "m"), **kw)
+
+    full = run(tmp_path / "full")
+    assert full["completed"]
+
+    # 1) stopped cleanly after 3 epochs, then rerun
+    part = run(tmp_path / "split", max_epochs_this_run=3)
+    assert part == {**part, "completed": False, "epochs_done": 3}
+    assert not (tmp_path / "split" / "m.pt").exists() and (tmp_path / "split" / "m.pt.ckpt").exists()
+    assert run(tmp_path / "split")["completed"]
+    _assert_same_weights(tmp_path / "full" / "m.pt", tmp_path / "split" / "m.pt")
+
+    # 2) killed in the middle of epoch 6 (last checkpoint: epoch 4), then rerun
+    cls = {"emulator": tr.EmulatorStage, "flow": tr.FlowStage, "encoder_decoder": tr.EncoderDecoderStage}[stage]
+    original = cls.batch_loss
+    calls = {"n": 0}
+    batches_per_epoch = 400 // hyper["batch_size"] + (400 % hyper["batch_size"] >= 2)
+
+    def dying(self, idx):
+        calls["n"] += 1
+        if calls["n"] > 5 * batches_per_epoch + 2:
+            raise _Killed
+        return original(self, idx)
+
+    monkeypatch.setattr(cls, "batch_loss", dying)
+    with pytest.raises(_Killed):
+        run(tmp_path / "killed")
+    monkeypatch.setattr(cls, "batch_loss", original)
+    assert len(pd.read_csv(tmp_path / "killed" / "m.csv")) == 5
+    assert torch.load(tmp_path / "killed" / "m.pt.ckpt", weights_only=True)["epoch"] == 4
+    assert run(tmp_path / "killed")["completed"]
+    _assert_same_weights(tmp_path / "full" / "m.pt", tmp_path / "killed" / "m.pt")
+    a = pd.read_csv(tmp_path / "full" / "m.csv").drop(columns="seconds")
+    b = pd.read_csv(tmp_path / "killed" / "m.csv").drop(columns="seconds")
+    pd.testing.assert_frame_equal(a, b)
+
+    # 3) a finished run rerun with the same arguments only re-writes the outputs
+    assert run(tmp_path / "full")["epochs_done"] == 7
+    _assert_same_weights(tmp_path / "full" / "m.pt", tmp_path / "killed" / "m.pt")
+
+
+def test_changed_hyper_ignores_checkpoint(data, tmp_path):
+    kw = dict(seed=1, device="cpu", progress=False, **_paths(tmp_path, "m"))
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 4}, max_epochs_this_run=2, **kw)
+    res = tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 4, "lr": 1e-3}, **kw)
+    assert res["completed"]
+    df = pd.read_csv(tmp_path / "m.csv")
+    assert df["epoch"].tolist() == [1, 2, 3, 4] and df["lr"].iloc[0] == 1e-3
+
+
+def test_seed_controls_result(data, tmp_path):
+    def run(name, seed):
+        tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 2}, seed=seed, device="cpu",
+                          progress=False, **_paths(tmp_path, name))
+        return tmp_path / f"{name}.pt"
+
+    _assert_same_weights(run("a", 7), run("b", 7))
+    with pytest.raises(AssertionError):
+        _assert_same_weights(run("c", 7), run("d", 8))
+
+
+def test_hyper_validation():
+    with pytest.raises(ValueError, match="missing"):
+        tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})
+    with pytest.raises(ValueError, match="unknown"):
+        tr.check_hyper("flow", FLOW | {"hiden": 3})
+    with pytest.raises(ValueError, match="reduction"):
+        tr.check_hyper("encoder_decoder", ENCDEC | {"reduction": "max"})
+    h = tr.check_hyper("emulator", EMU)
+    assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
+
+
+def test_resolve_device():
+    assert tr.resolve_device("cpu").type == "cpu"
+    assert tr.resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")

@@ -1,0 +1,30 @@
+"""The training stage run by Snakemake on the smoke config, in a copy of the workflow."""
+import pandas as pd
+
+from cvsim6 import networks
+from test_workflow import copy_workflow, snakemake
+
+
+def test_training_stage_end_to_end(tmp_path):
+    work = copy_workflow(tmp_path)
+    targets = ["results/tables/structural_emulator_validation.md",
+               "results/tables/ehr_architectures.md",
+               "results/models/ehr/encoder_decoder_delta0.5.pt",
+               "results/models/ehr/flow_delta2.pt"]
+    proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml", cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    # models load, with the architecture of the config and the noise level of the file name
+    ed, info = networks.load_model(work / "results/models/ehr/encoder_decoder_delta0.5.pt", with_info=True)
+    assert info["noise_level"] == 0.5 and info["stage"] == "encoder_decoder"
+    flow, info = networks.load_model(work / "results/models/ehr/flow_delta2.pt", with_info=True)
+    assert info["noise_level"] == 2.0 and networks.count_parameters(flow) == 20280
+    # per-epoch losses of every stage, as many rows as configured epochs
+    losses = pd.read_csv(work / "results/training/ehr/encoder_decoder_delta0.5_losses.csv")
+    assert list(losses["epoch"]) == [1, 2]
+    assert losses[["train_loss", "test_loss"]].notna().all().all()
+    assert (work / "results/training/ehr/encoder_decoder_delta0.5_losses.png").is_file()
+    # the generated appendix tables state what was run
+    arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
+    assert (arch["Parameters"] == arch["Parameters (paper)"]).all()
+    val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
+    assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val

@@ -1,0 +1,166 @@
+# Staged training of the inVAErt networks (paper section 2.2, appendix B): the
+# emulator and the flows first (side by side), then the encoder/decoder through the
+# frozen emulator; one flow and one encoder/decoder per training-noise level delta.
+
+MODELS = f"{RESULTS}/models"
+TRAINING = f"{RESULTS}/training"
+
+
+wildcard_constraints:
+    delta=r"[0-9.]+",
+
+
+rule network_tables:
+    input:
+        code=package_code("tables", "networks", "paper_values"),
+    output:
+        architecture_csv=f"{TABLES}/{{study}}_architectures.csv",
+        architecture_md=f"{TABLES}/{{study}}_architectures.md",
+        schedule_csv=f"{TABLES}/{{study}}_schedules.csv",
+        schedule_md=f"{TABLES}/{{study}}_schedules.md",
+    params:
+        function="cvsim6.tables:write_network_tables",
+        training=config["training"],
+        study=lambda w: w.study,
+    log:
+        f"{LOGS}/network_tables/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/network_tables/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule train_emulator:
+    input:
+        code=package_code("training", "networks"),
+        train=f"{DATA}/{{study}}/train.parquet",
+        test=f"{DATA}/{{study}}/test.parquet",
+    output:
+        model=f"{MODELS}/{{study}}/emulator.pt",
+        losses=f"{TRAINING}/{{study}}/emulator_losses.csv",
+        figure=report(
+            f"{TRAINING}/{{study}}/emulator_losses.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/training_losses.rst",
+        ),
+    params:
+        function="cvsim6.training:train_emulator",
+        hyper=lambda w: config["training"]["studies"][w.study]["emulator"],
+        seed=config["seed"],
+        device=config["training"]["device"],
+        checkpoint_every=config["training"]["checkpoint_every"],
+    log:
+        f"{LOGS}/train_emulator/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_emulator/{{study}}.tsv"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule train_flow:
+    input:
+        code=package_code("training", "networks"),
+        train=f"{DATA}/{{study}}/train.parquet",
+        test=f"{DATA}/{{study}}/test.parquet",
+    output:
+        model=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
+        losses=f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.csv",
+        figure=report(
+            f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/training_losses.rst",
+        ),
+    params:
+        function="cvsim6.training:train_flow",
+        hyper=lambda w: config["training"]["studies"][w.study]["flow"],
+        noise_level=lambda w: float(w.delta),
+        seed=config["seed"],
+        device=config["training"]["device"],
+        checkpoint_every=config["training"]["checkpoint_every"],
+    log:
+        f"{LOGS}/train_flow/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_flow/{{study}}_delta{{delta}}.tsv"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule train_encoder_decoder:
+    input:
+        code=package_code("training", "networks"),
+        train=f"{DATA}/{{study}}/train.parquet",
+        test=f"{DATA}/{{study}}/test.parquet",
+        emulator=rules.train_emulator.output.model,
+    output:
+        model=f"{MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt",
+        losses=f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.csv",
+        figure=report(
+            f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/training_losses.rst",
+        ),
+    params:
+        function="cvsim6.training:train_encoder_decoder",
+        hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
+        noise_level=lambda w: float(w.delta),
+        seed=config["seed"],
+        device=config["training"]["device"],
+        checkpoint_every=config["training"]["checkpoint_every"],
+    log:
+        f"{LOGS}/train_encoder_decoder/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_encoder_decoder/{{study}}_delta{{delta}}.tsv"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=480,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule emulator_validation:
+    input:
+        code=package_code("evaluation", "paper_values"),
+        model=rules.train_emulator.output.model,
+        validation=f"{DATA}/{{study}}/validation.parquet",
+    output:
+        csv=f"{TABLES}/{{study}}_emulator_validation.csv",
+        md=f"{TABLES}/{{study}}_emulator_validation.md",
+    params:
+        function="cvsim6.evaluation:emulator_validation",
+        study=lambda w: w.study,
+    log:
+        f"{LOGS}/emulator_validation/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/emulator_validation/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

@@ -51,3 +51,6 @@ rule all:
         expand(rules.data_histograms.output, study=STUDIES),
         rules.ehr_patients.output,
         [training_targets(study) for study in STUDIES],
+        rules.ehr_error_table.output,
+        expand(rules.ehr_ood_table.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
+        expand(rules.ehr_patient_figure.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),

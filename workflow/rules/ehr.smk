@@ -47,3 +47,112 @@ rule ehr_patients:
         "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
+
+
+rule invert_ehr_patients:
+    input:
+        code=package_code("ehr_study", "inversion", "networks"),
+        patients=rules.ehr_patients.output.patients,
+        flow=f"{RESULTS}/models/ehr/flow_delta{{delta}}.pt",
+        encoder_decoder=f"{RESULTS}/models/ehr/encoder_decoder_delta{{delta}}.pt",
+        emulator=f"{RESULTS}/models/ehr/emulator.pt",
+        reference=f"{DATA}/ehr/validation.parquet",
+    output:
+        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+    params:
+        function="cvsim6.ehr_study:invert_ehr_patients",
+        noise_level=lambda w: float(w.delta),
+        n_latent=config["ehr_study"]["n_latent"],
+        n_flow_samples=config["ehr_study"]["n_flow_samples"],
+        n_reference=config["ehr_study"]["n_reference"],
+        reference_flow_samples=config["ehr_study"]["reference_flow_samples"],
+        seed=config["seed"],
+    log:
+        f"{LOGS}/invert_ehr_patients/delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/invert_ehr_patients/delta{{delta}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule ehr_error_table:
+    input:
+        code=package_code("ehr_study", "tables"),
+        patients=rules.ehr_patients.output.patients,
+        predictions=expand(
+            f"{EHR}/predictions_delta{{delta}}.parquet",
+            delta=[noise_tag(d) for d in config["training"]["studies"]["ehr"]["noise_levels"]],
+        ),
+    output:
+        csv=f"{TABLES}/ehr_error_per_output.csv",
+        md=f"{TABLES}/ehr_error_per_output.md",
+    params:
+        function="cvsim6.ehr_study:ehr_error_table",
+    log:
+        f"{LOGS}/ehr_error_table.log",
+    benchmark:
+        f"{BENCHMARKS}/ehr_error_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule ehr_ood_table:
+    input:
+        code=package_code("ehr_study", "tables"),
+        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+    output:
+        csv=f"{TABLES}/ehr_ood_delta{{delta}}.csv",
+        md=f"{TABLES}/ehr_ood_delta{{delta}}.md",
+    params:
+        function="cvsim6.ehr_study:ood_table",
+    log:
+        f"{LOGS}/ehr_ood_table/delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/ehr_ood_table/delta{{delta}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule ehr_patient_figure:
+    input:
+        code=package_code("ehr_study", "plots"),
+        patients=rules.ehr_patients.output.patients,
+        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+    output:
+        figure=report(
+            f"{EHR}/patient_predictions_delta{{delta}}.png",
+            category="EHR study",
+            caption="../report/ehr_patient_figure.rst",
+        ),
+    params:
+        function="cvsim6.ehr_study:ehr_patient_figure",
+    log:
+        f"{LOGS}/ehr_patient_figure/delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/ehr_patient_figure/delta{{delta}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

@@ -30,6 +30,7 @@ include: "workflow/rules/stiffness.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/ehr.smk"
 include: "workflow/rules/training.smk"
+include: "workflow/rules/structural.smk"
 
 
 localrules:
@@ -52,5 +53,11 @@ rule all:
         rules.ehr_patients.output,
         [training_targets(study) for study in STUDIES],
         rules.ehr_error_table.output,
+        rules.structural_inversion_table.output,
+        rules.structural_reconstruction.output,
+        rules.structural_parallel_coordinates.output,
+        rules.structural_manifold_svd.output,
+        rules.structural_missing_data.output,
+        rules.structural_jacobian.output,
         expand(rules.ehr_ood_table.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
         expand(rules.ehr_patient_figure.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),

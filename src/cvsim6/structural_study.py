@@ -1,0 +1,286 @@
+"""Structural identifiability study (paper section 3.3, appendix C), as workflow steps.
+
+All parameter sets decoded by NN_d are checked through the *simulator* (batch path),
+not the emulator. Units: registry units throughout.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import datasets, evaluation, identifiability, inversion, paper_values, priors, solver
+from .registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
+
+log = logging.getLogger(__name__)
+
+#: Paper table 4: the observation y* (sampled from NN_f in the paper).
+PAPER_Y_STAR = (72.91, 142.78, 111.55, 22.78, -1.51, 22.37, 13.13, 1.61, 12.56, 7.27, 76.81,
+                153.61, 0.50, 5.60, 1725.48, 74.53)
+#: Paper section 3.3.3: outputs of y* taken as missing.
+PAPER_MISSING = ("P_a_dia", "P_r_dia", "P_pa_dia", "P_w", "V_l_sys", "SVR", "PVR")
+#: The paper's headline numbers of this section.
+PAPER_HEADLINES = {"max_rel_error_manifold": 0.00139, "modes_99": 12, "energy_at_modes": 0.9928,
+                   "max_rel_error_missing": 0.00408}
+
+
+def _simulate(v: np.ndarray, simulator: dict) -> tuple[np.ndarray, np.ndarray]:
+    return solver.simulate_batch(v, steps_per_cycle=simulator["steps_per_cycle"],
+                                 n_cycles=simulator["n_cycles"], window_cycles=simulator["window_cycles"])
+
+
+def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, simulator: dict, seed: int) -> None:
+    """Table 3: decoder on the validation outputs (one w each), pushed through the simulator."""
+    from .networks import load_model
+    from .tables import write_table
+
+    ed = load_model(encoder_decoder)
+    _, y = datasets.load_split(validation)
+    v = inversion.decode_latent(ed, y, 1, seed=seed)[:, 0]
+    yhat, st = _simulate(v, simulator)
+    ok = st == 0
+    stats = evaluation.error_statistics(y[ok], yhat[ok])
+    write_table(evaluation.error_table(stats, paper_values.INVERSION_STRUCTURAL), csv, md,
+                caption=f"Absolute reconstruction error of the amortized inversion on {ok.sum():,} of "
+                        f"{len(y):,} validation outputs (decoded parameters simulated; {int((~ok).sum())} "
+                        f"decoded sets flagged by the simulator); paper table 3 beside")
+
+
+def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples: int, seed: int) -> None:
+    """y*: the paper's table values, or the highest-density of ``n_flow_samples`` NN_f samples."""
+    from .networks import load_model
+    from .tables import write_table
+
+    if source == "paper":
+        y = np.array(PAPER_Y_STAR)
+    else:
+        import torch
+
+        f = load_model(flow)
+        samples = f.sample_physical(n_flow_samples, generator=torch.Generator().manual_seed(seed))
+        lp = f.log_prob_physical(samples)
+        y = samples[int(np.nanargmax(lp))]
+    df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "y*": y, "paper y*": PAPER_Y_STAR})
+    write_table(df, csv, md, caption=f"The observation y* (source: {source})")
+
+
+def _y_star(observation: str) -> np.ndarray:
+    return pd.read_csv(observation)["y*"].to_numpy(float)
+
+
+def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samples: int, seed: int) -> None:
+    """Decode y* with ``n_samples`` latent draws: parameter sets on the manifold M_y* (Parquet)."""
+    from .networks import load_model
+
+    v = inversion.decode_latent(load_model(encoder_decoder), _y_star(observation)[None], n_samples, seed=seed)[0]
+    datasets.write_dataset(pd.DataFrame(v, columns=list(PARAMETER_NAMES)), samples)
+
+
+def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulator: dict, colors,
+                       observed: np.ndarray | None = None) -> None:
+    """P_a, P_r, P_pa, V_l over the last cycle of each parameter set, y* targets as lines."""
+    quantities = (("P_a", 1, "P_a_sys", "P_a_dia"), ("P_r", 3, "P_r_sys", "P_r_dia"),
+                  ("P_pa", 4, "P_pa_sys", "P_pa_dia"), ("V_l", 0, "V_l_sys", "V_l_dia"))
+    for p, c in zip(params, colors):
+        traj, _, _ = solver.simulate_trajectory(p, steps_per_cycle=simulator["steps_per_cycle"],
+                                                n_cycles=simulator["n_cycles"],
+                                                window_cycles=simulator["window_cycles"])
+        T = 60.0 / p[0]
+        m = traj.t >= traj.t[-1] - T
+        t = (traj.t[m] - traj.t[m][0]) / T
+        for ax, (name, k, hi, lo) in zip(ax_list, quantities):
+            series = traj.V[m, k] if name == "V_l" else traj.P[m, k]
+            ax.plot(t, series, color=c, lw=0.8, alpha=0.8)
+    for ax, (name, k, hi, lo) in zip(ax_list, quantities):
+        for out in (hi, lo):
+            j = OUTPUT_INDEX[out]
+            if observed is None or observed[j]:
+                ax.axhline(y_star[j], color="k", ls="--", lw=1)
+        unit = "mL" if name == "V_l" else "mmHg"
+        ax.set_ylabel(f"{name} ({unit})")
+        ax.set_xlabel("t / T (last cycle)")
+        ax.grid(alpha=0.3)
+
+
+def manifold_reconstruction(samples: str, observation: str, csv: str, md: str, figure: str, simulator: dict,
+                            n_reconstruct: int, n_traces: int) -> None:
+    """The first ``n_reconstruct`` manifold samples through the simulator: max relative error
+    against y* (paper: ~0.139%) and the four-panel trajectory figure (``n_traces`` traces)."""
+    import matplotlib.pyplot as plt
+
+    from .plots import save_figure
+    from .tables import write_table
+
+    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()[:n_reconstruct]
+    y_star = _y_star(observation)
+    yhat, st = _simulate(v, simulator)
+    rel = np.abs(yhat[st == 0] - y_star) / np.abs(y_star)
+    worst = rel.max(axis=0)
+    df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "max relative error": worst})
+    summary = {"n": int(len(v)), "flagged": int((st != 0).sum()), "max_rel_error": float(worst.max()),
+               "worst_output": OUTPUT_NAMES[int(np.argmax(worst))],
+               "paper_max_rel_error": PAPER_HEADLINES["max_rel_error_manifold"]}
+    write_table(df, csv, md, caption=f"Max relative error |f(v) - y*| / |y*| over {len(v)} decoded "
+                                     f"parameter sets: {worst.max():.3%} (paper: about 0.139%)")
+    Path(csv).with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    cmap = plt.get_cmap("viridis")
+    _trajectory_panels(axes.flat, v[:n_traces], y_star, simulator,
+                       [cmap(i / max(1, n_traces - 1)) for i in range(n_traces)])
+    fig.suptitle(f"{n_traces} of {len(v)} decoded parameter sets for y* (dashed: targets in y*)")
+    fig.tight_layout()
+    save_figure(fig, figure)
+
+
+def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -> None:
+    """Parallel-coordinate plot of the manifold, two rows, limits 5% beyond the prior bounds."""
+    import matplotlib.pyplot as plt
+
+    from .plots import save_figure
+
+    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()[:n_lines]
+    lo, hi = priors.prior_bounds(prior)
+    pad = 0.05 * (hi - lo)
+    lo, hi = lo - pad, hi + pad
+    u = (v - lo) / (hi - lo)
+    rows = [list(range(0, 12)), list(range(11, 23))]  # R_l_in (index 11) in both rows
+    fig, axes = plt.subplots(2, 1, figsize=(14, 7))
+    for ax, idx in zip(axes, rows):
+        x = np.arange(len(idx))
+        for line in u[:, idx]:
+            ax.plot(x, line, color="tab:blue", alpha=0.25, lw=0.8)
+        for xi, j in zip(x, idx):
+            ax.axvline(xi, color="k", lw=0.6)
+            ax.text(xi, 1.02, f"{hi[j]:.3g}", ha="center", fontsize=7)
+            ax.text(xi, -0.06, f"{lo[j]:.3g}", ha="center", fontsize=7, va="top")
+        ax.set_xticks(x)
+        ax.set_xticklabels([PARAMETER_NAMES[j] for j in idx], fontsize=9)
+        ax.set_yticks([])
+        ax.set_ylim(-0.12, 1.08)
+        ax.set_xlim(-0.3, len(idx) - 0.7)
+        for side in ("top", "right", "left"):
+            ax.spines[side].set_visible(False)
+    fig.suptitle(f"Non-identifiable manifold of y*: {len(v)} decoded parameter sets "
+                 "(axes span the prior bounds +5%; units as the input table)")
+    fig.tight_layout()
+    save_figure(fig, figure)
+
+
+def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99) -> None:
+    """Singular values and cumulative energy of the manifold samples; modes reaching ``level``."""
+    import matplotlib.pyplot as plt
+
+    from .plots import save_figure
+
+    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
+    s = identifiability.manifold_svd(v)
+    ce = identifiability.cumulative_energy(s)
+    n, e = identifiability.modes_for_energy(s, level)
+    pd.DataFrame({"mode": np.arange(1, len(s) + 1), "singular_value": s, "cumulative_energy": ce}).to_csv(csv, index=False)
+    Path(csv).with_suffix(".json").write_text(json.dumps(
+        {"n_samples": int(len(v)), "level": level, "modes": n, "energy": e,
+         "paper_modes": PAPER_HEADLINES["modes_99"], "paper_energy": PAPER_HEADLINES["energy_at_modes"]},
+        indent=2) + "\n")
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    k = np.arange(1, len(s) + 1)
+    a.semilogy(k, s, "o-")
+    a.set_xlabel("mode")
+    a.set_ylabel("singular value")
+    b.plot(k, ce, "o-")
+    b.axhline(level, color="gray", ls="--")
+    b.axvline(n, color="tab:red", ls=":")
+    b.annotate(f"{n} modes: {e:.2%}", (n, e), textcoords="offset points", xytext=(8, -18))
+    b.set_xlabel("modes kept")
+    b.set_ylabel("cumulative energy")
+    for ax in (a, b):
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"SVD of {len(v):,} parameter sets on the manifold of y* (paper: 12 modes, 99.28%)")
+    fig.tight_layout()
+    save_figure(fig, figure)
+
+
+def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md: str, figure: str,
+                 simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int) -> None:
+    """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
+    max relative error on the observed entries (paper: ~0.408%) and the trajectory figure."""
+    import matplotlib.pyplot as plt
+
+    from .networks import load_model
+    from .plots import save_figure
+    from .tables import write_table
+
+    y_star = _y_star(observation)
+    y_obs = y_star.copy()
+    miss = np.array([n in missing for n in OUTPUT_NAMES])
+    y_obs[miss] = np.nan
+    best, lp = inversion.complete_missing(load_model(flow), y_obs, n_flow_samples, top_k=top_k, seed=seed)
+    v = inversion.decode_latent(load_model(encoder_decoder), best, n_latent, seed=seed)  # (k, n, 23)
+    yhat, st = _simulate(v.reshape(-1, len(PARAMETER_NAMES)), simulator)
+    rel = np.abs(yhat[:, ~miss] - y_star[~miss]) / np.abs(y_star[~miss])
+    rel = rel[st == 0]
+    table = pd.DataFrame(best, columns=list(OUTPUT_NAMES))
+    table.insert(0, "log_density", lp)
+    table.insert(0, "rank", np.arange(1, top_k + 1))
+    write_table(table, csv, md, caption=f"Top {top_k} completions of y* without {', '.join(missing)} "
+                                        f"({n_flow_samples:,} flow samples); max relative error of the "
+                                        f"{top_k}x{n_latent} simulated reconstructions on the observed "
+                                        f"entries: {rel.max():.3%} (paper: about 0.408%)")
+    Path(csv).with_suffix(".json").write_text(json.dumps(
+        {"max_rel_error_observed": float(rel.max()), "flagged": int((st != 0).sum()),
+         "paper": PAPER_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    colors = plt.get_cmap("tab10").colors
+    for g in range(top_k):
+        _trajectory_panels(axes.flat, v[g], y_star, simulator, [colors[g]] * n_latent, observed=~miss)
+    for g in range(top_k):
+        axes.flat[0].plot([], [], color=colors[g], label=f"completion {g + 1}")
+    axes.flat[0].legend(fontsize=8)
+    fig.suptitle(f"Missing data: {top_k} completions x {n_latent} latent draws (dashed: observed targets)")
+    fig.tight_layout()
+    save_figure(fig, figure)
+
+
+def jacobian_check(samples: str, csv: str, md: str, figure: str, prior: dict, simulator: dict,
+                   n_points: int, rel_step: float, rank_rtol: float) -> None:
+    """Local identifiability at manifold samples: scaled Jacobian spectra, ranks, and per
+    parameter the spread over the manifold (fraction of the prior width) and null-space share."""
+    import matplotlib.pyplot as plt
+
+    from .plots import save_figure
+    from .tables import write_table
+
+    v_all = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
+    v = v_all[:n_points]
+    lo, hi = priors.prior_bounds(prior)
+    w = hi - lo
+    f = identifiability.simulator_outputs(simulator["steps_per_cycle"])
+    J = identifiability.finite_difference_jacobian(f, v, w, rel_step=rel_step)
+    ok = np.isfinite(J).all(axis=(1, 2))
+    sv, ranks, shares = identifiability.local_identifiability(identifiability.scaled_jacobian(J[ok], w), rank_rtol)
+    spread = (np.percentile(v_all, 97.5, axis=0) - np.percentile(v_all, 2.5, axis=0)) / w
+    df = pd.DataFrame({"Parameter": list(PARAMETER_NAMES), "manifold spread / prior width (95%)": spread,
+                       "null-space share (mean)": shares.mean(axis=0),
+                       "null-space share (max)": shares.max(axis=0)})
+    df = df.sort_values("null-space share (mean)", ascending=False)
+    rank_counts = {int(r): int(c) for r, c in zip(*np.unique(ranks, return_counts=True))}
+    write_table(df, csv, md, caption=f"Local identifiability at {ok.sum()} manifold samples: Jacobian rank "
+                                     f"{rank_counts} (rtol {rank_rtol:g}), so a local manifold dimension of "
+                                     f"{23 - int(np.median(ranks))}; the SVD of the manifold samples needs "
+                                     "its own count of modes (see manifold_svd.json)")
+    Path(csv).with_suffix(".json").write_text(json.dumps(
+        {"points": int(ok.sum()), "rank_counts": rank_counts, "median_rank": float(np.median(ranks)),
+         "local_manifold_dimension": 23 - int(np.median(ranks))}, indent=2) + "\n")
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for s in sv:
+        ax.semilogy(np.arange(1, len(s) + 1), s / s[0], color="tab:blue", alpha=0.3)
+    ax.axhline(rank_rtol, color="tab:red", ls="--", label=f"rank threshold {rank_rtol:g}")
+    ax.set_xlabel("singular value index")
+    ax.set_ylabel("sigma_k / sigma_1 (scaled Jacobian)")
+    ax.set_title(f"Jacobian spectra at {ok.sum()} points of the manifold of y*")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    save_figure(fig, figure)

@@ -1,0 +1,45 @@
+"""Error statistics on known numbers, and the structural study end to end (smoke config)."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsim6 import evaluation, registry, structural_study
+from test_workflow import copy_workflow, snakemake
+
+
+def test_error_statistics_known_values():
+    y = np.zeros((4, 16))
+    yhat = np.zeros((4, 16))
+    yhat[:, 0] = [1.0, -1.0, 3.0, -3.0]  # |err| 1, 1, 3, 3: mean 2, max 3, std 1
+    yhat[2, 5] = np.nan  # a row with a NaN is left out everywhere
+    s = evaluation.error_statistics(y, yhat)
+    assert s.loc["Hr"].tolist() == pytest.approx([5 / 3, 3.0, np.std([1, 1, 3])])
+    assert (s.loc["P_a_sys"] == 0).all()
+    t = evaluation.error_table(s, {"mean": list(range(16)), "max": [0] * 16, "std": [0] * 16})
+    assert list(t["Output"]) == list(registry.OUTPUT_NAMES) and t.loc[3, "Mean (paper)"] == 3
+
+
+def test_structural_stage_end_to_end(tmp_path):
+    work = copy_workflow(tmp_path)
+    targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",
+               "results/structural/manifold_parallel_coordinates.png", "results/structural/manifold_svd.png",
+               "results/structural/missing_data_trajectories.png", "results/structural/jacobian_spectra.png"]
+    proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml", cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    t = pd.read_csv(work / "results/tables/structural_inversion_errors.csv")
+    assert len(t) == 16 and (t["Max (ours)"] >= t["Mean (ours)"]).all() and "Mean (paper)" in t
+    obs = pd.read_csv(work / "results/tables/structural_observation.csv")
+    np.testing.assert_allclose(obs["y*"], structural_study.PAPER_Y_STAR)
+    svd = json.loads((work / "results/structural/manifold_svd.json").read_text())
+    assert 1 <= svd["modes"] <= 23 and svd["energy"] >= 0.99 and svd["n_samples"] == 200
+    miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
+    assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()
+    for name in registry.OUTPUT_NAMES:  # observed entries of y* are kept in every completion
+        if name not in structural_study.PAPER_MISSING:
+            assert (miss[name] == obs.set_index("Output").loc[name, "y*"]).all()
+    jac = json.loads((work / "results/tables/structural_local_identifiability.json").read_text())
+    assert 1 <= jac["median_rank"] <= 16 and jac["local_manifold_dimension"] >= 7
+    for fig in targets[1:]:
+        assert (work / fig).with_suffix(".pdf").is_file()

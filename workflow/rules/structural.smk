@@ -1,0 +1,224 @@
+# Structural identifiability study (paper section 3.3 and appendix C), from the
+# networks trained on the structural data (noise-free, delta = 0).
+
+STRUCT = f"{RESULTS}/structural"
+SCFG = config["structural_study"]
+S_MODELS = f"{RESULTS}/models/structural"
+
+
+rule structural_inversion_table:
+    input:
+        code=package_code("structural_study", "evaluation", "paper_values"),
+        encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
+        validation=f"{DATA}/structural/validation.parquet",
+    output:
+        csv=f"{TABLES}/structural_inversion_errors.csv",
+        md=f"{TABLES}/structural_inversion_errors.md",
+    params:
+        function="cvsim6.structural_study:inversion_table",
+        simulator=config["simulator"],
+        seed=config["seed"],
+    log:
+        f"{LOGS}/structural_inversion_table.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_inversion_table.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_observation:
+    input:
+        code=package_code("structural_study"),
+        flow=f"{S_MODELS}/flow_delta0.pt",
+    output:
+        csv=f"{TABLES}/structural_observation.csv",
+        md=f"{TABLES}/structural_observation.md",
+    params:
+        function="cvsim6.structural_study:choose_observation",
+        source=SCFG["observation"],
+        n_flow_samples=SCFG["observation_flow_samples"],
+        seed=config["seed"],
+    log:
+        f"{LOGS}/structural_observation.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_observation.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_manifold:
+    input:
+        code=package_code("structural_study", "inversion"),
+        encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
+        observation=rules.structural_observation.output.csv,
+    output:
+        samples=f"{STRUCT}/manifold_samples.parquet",
+    params:
+        function="cvsim6.structural_study:sample_manifold",
+        n_samples=SCFG["n_manifold"],
+        seed=config["seed"],
+    log:
+        f"{LOGS}/structural_manifold.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_manifold.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_reconstruction:
+    input:
+        code=package_code("structural_study", "solver", "_kernel"),
+        samples=rules.structural_manifold.output.samples,
+        observation=rules.structural_observation.output.csv,
+    output:
+        csv=f"{TABLES}/structural_manifold_reconstruction.csv",
+        md=f"{TABLES}/structural_manifold_reconstruction.md",
+        figure=report(f"{STRUCT}/manifold_trajectories.png", category="Structural study",
+                      caption="../report/structural_trajectories.rst"),
+    params:
+        function="cvsim6.structural_study:manifold_reconstruction",
+        simulator=config["simulator"],
+        n_reconstruct=SCFG["n_reconstruct"],
+        n_traces=SCFG["n_traces"],
+    log:
+        f"{LOGS}/structural_reconstruction.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_reconstruction.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_parallel_coordinates:
+    input:
+        code=package_code("structural_study"),
+        samples=rules.structural_manifold.output.samples,
+    output:
+        figure=report(f"{STRUCT}/manifold_parallel_coordinates.png", category="Structural study",
+                      caption="../report/structural_parallel_coordinates.rst"),
+    params:
+        function="cvsim6.structural_study:parallel_coordinates",
+        prior=config["data"]["studies"]["structural"]["prior"],
+        n_lines=SCFG["n_reconstruct"],
+    log:
+        f"{LOGS}/structural_parallel_coordinates.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_parallel_coordinates.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_manifold_svd:
+    input:
+        code=package_code("structural_study", "identifiability"),
+        samples=rules.structural_manifold.output.samples,
+    output:
+        csv=f"{STRUCT}/manifold_svd.csv",
+        figure=report(f"{STRUCT}/manifold_svd.png", category="Structural study",
+                      caption="../report/structural_svd.rst"),
+    params:
+        function="cvsim6.structural_study:manifold_svd_figure",
+    log:
+        f"{LOGS}/structural_manifold_svd.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_manifold_svd.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_missing_data:
+    input:
+        code=package_code("structural_study", "inversion"),
+        flow=f"{S_MODELS}/flow_delta0.pt",
+        encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
+        observation=rules.structural_observation.output.csv,
+    output:
+        csv=f"{TABLES}/structural_missing_data.csv",
+        md=f"{TABLES}/structural_missing_data.md",
+        figure=report(f"{STRUCT}/missing_data_trajectories.png", category="Structural study",
+                      caption="../report/structural_missing.rst"),
+    params:
+        function="cvsim6.structural_study:missing_data",
+        simulator=config["simulator"],
+        missing=SCFG["missing"],
+        n_flow_samples=SCFG["missing_flow_samples"],
+        top_k=SCFG["missing_top"],
+        n_latent=SCFG["missing_latent"],
+        seed=config["seed"],
+    log:
+        f"{LOGS}/structural_missing_data.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_missing_data.tsv"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule structural_jacobian:
+    input:
+        code=package_code("structural_study", "identifiability", "solver", "_kernel"),
+        samples=rules.structural_manifold.output.samples,
+    output:
+        csv=f"{TABLES}/structural_local_identifiability.csv",
+        md=f"{TABLES}/structural_local_identifiability.md",
+        figure=report(f"{STRUCT}/jacobian_spectra.png", category="Structural study",
+                      caption="../report/structural_jacobian.rst"),
+    params:
+        function="cvsim6.structural_study:jacobian_check",
+        prior=config["data"]["studies"]["structural"]["prior"],
+        simulator=config["simulator"],
+        n_points=SCFG["jacobian_points"],
+        rel_step=SCFG["jacobian_rel_step"],
+        rank_rtol=SCFG["rank_rtol"],
+    log:
+        f"{LOGS}/structural_jacobian.log",
+    benchmark:
+        f"{BENCHMARKS}/structural_jacobian.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=15,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

@@ -21,6 +21,13 @@ def test_error_statistics_known_values():
     assert list(t["Output"]) == list(registry.OUTPUT_NAMES) and t.loc[3, "Mean (paper)"] == 3
 
 
+def test_relative_l2_errors():
+    y = np.array([[3.0, 4.0] + [0.0] * 14, [1.0] + [0.0] * 15])
+    yhat = y.copy()
+    yhat[0, 0] += 0.5  # 0.5 / 5
+    np.testing.assert_allclose(evaluation.relative_l2_errors(y, yhat), [0.1, 0.0])
+
+
 def test_structural_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",

@@ -10,7 +10,9 @@ def test_training_stage_end_to_end(tmp_path):
     targets = ["results/tables/structural_emulator_validation.md",
                "results/tables/ehr_architectures.md",
                "results/models/ehr/encoder_decoder_delta0.5.pt",
-               "results/models/ehr/flow_delta2.pt"]
+               "results/models/ehr/flow_delta2.pt",
+               "results/training/ehr/emulator_l2_errors.json",
+               "results/training/structural/flow_delta0_marginals.png"]
     proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml", cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     # models load, with the architecture of the config and the noise level of the file name
@@ -26,5 +28,10 @@ def test_training_stage_end_to_end(tmp_path):
     # the generated appendix tables state what was run
     arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
     assert (arch["Parameters"] == arch["Parameters (paper)"]).all()
+    import json
+
+    l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
+    assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"] and l2["paper_max"] == 0.00984
+    assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()
     val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val

@@ -39,3 +39,61 @@ def emulator_validation(model: str, validation: str, csv: str, md: str, study: s
     write_table(error_table(stats, paper), csv, md,
                 caption=f"Emulator absolute error on the {len(v):,} validation sets ({study} study)"
                         + (", paper appendix C beside ours" if paper else ""))
+
+
+def relative_l2_errors(y_true: np.ndarray, y_pred: np.ndarray) -> np.ndarray:
+    """Per row ``||y_pred - y_true||_2 / ||y_true||_2`` (fraction)."""
+    y_true = np.asarray(y_true, float)
+    return np.linalg.norm(np.asarray(y_pred, float) - y_true, axis=1) / np.linalg.norm(y_true, axis=1)
+
+
+def emulator_l2_histogram(model: str, validation: str, figure: str, summary: str) -> None:
+    """Histogram of the emulator's relative l2 error on the validation split (paper fig. 10)."""
+    import json
+
+    import matplotlib.pyplot as plt
+
+    from .networks import load_model
+    from .plots import save_figure
+
+    v, y = datasets.load_split(validation)
+    err = relative_l2_errors(y, load_model(model).predict(v))
+    info = {"n": int(len(err)), "max": float(err.max()), "mean": float(err.mean()),
+            "paper_max": paper_values.EHR_EMULATOR_MAX_REL_L2}
+    with open(summary, "w") as fh:
+        json.dump(info, fh, indent=2)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.hist(100 * err, bins=60, color="#3b75af")
+    ax.set_xlabel("relative l2 error of the emulator (%)")
+    ax.set_ylabel("validation sets")
+    ax.set_title(f"{len(err):,} validation sets: max {100 * err.max():.3f}% "
+                 f"(paper: {100 * paper_values.EHR_EMULATOR_MAX_REL_L2:.3f}%)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    save_figure(fig, figure)
+
+
+def flow_marginals(flow: str, validation: str, figure: str, n_samples: int, seed: int) -> None:
+    """The 16 output marginals of NN_f samples (red) against the data (blue) (appendix C)."""
+    import matplotlib.pyplot as plt
+    import torch
+
+    from .networks import load_model
+    from .plots import label, save_figure
+
+    _, y = datasets.load_split(validation)
+    s = load_model(flow).sample_physical(n_samples, generator=torch.Generator().manual_seed(seed))
+    fig, axes = plt.subplots(2, 8, figsize=(20, 5))
+    for j, (ax, name) in enumerate(zip(axes.flat, OUTPUT_NAMES)):
+        lo, hi = np.percentile(y[:, j], [0.1, 99.9])
+        pad = 0.1 * (hi - lo) if hi > lo else 1.0
+        bins = np.linspace(lo - pad, hi + pad, 50)
+        ax.hist(y[:, j], bins=bins, density=True, color="tab:blue", alpha=0.5, label="data")
+        ax.hist(s[:, j], bins=bins, density=True, histtype="step", color="tab:red", lw=1.5, label="NN_f")
+        ax.set_xlabel(label(name), fontsize=8)
+        ax.set_yticks([])
+        ax.tick_params(labelsize=7)
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(f"Output marginals: {len(y):,} validation outputs (blue) vs {n_samples:,} NN_f samples (red)")
+    fig.tight_layout()
+    save_figure(fig, figure)

@@ -40,7 +40,8 @@ def training_targets(study):
     return (
         [f"{MODELS}/{study}/emulator.pt", f"{TRAINING}/{study}/emulator_losses.png",
          f"{TABLES}/{study}_emulator_validation.md", f"{TABLES}/{study}_architectures.md",
-         f"{TABLES}/{study}_schedules.md"]
+         f"{TABLES}/{study}_schedules.md", f"{TRAINING}/{study}/emulator_l2_errors.png"]
+        + [f"{TRAINING}/{study}/flow_delta{d}_marginals.png" for d in deltas]
         + [f"{MODELS}/{study}/{stage}_delta{d}.pt" for d in deltas for stage in ("flow", "encoder_decoder")]
         + [f"{TRAINING}/{study}/{stage}_delta{d}_losses.png" for d in deltas for stage in ("flow", "encoder_decoder")]
     )

@@ -164,3 +164,54 @@ rule emulator_validation:
         "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
+
+
+rule emulator_l2_histogram:
+    input:
+        code=package_code("evaluation", "paper_values"),
+        model=rules.train_emulator.output.model,
+        validation=f"{DATA}/{{study}}/validation.parquet",
+    output:
+        figure=report(f"{TRAINING}/{{study}}/emulator_l2_errors.png", category="Training",
+                      subcategory="{study}", caption="../report/emulator_l2.rst"),
+        summary=f"{TRAINING}/{{study}}/emulator_l2_errors.json",
+    params:
+        function="cvsim6.evaluation:emulator_l2_histogram",
+    log:
+        f"{LOGS}/emulator_l2_histogram/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/emulator_l2_histogram/{{study}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"
+
+
+rule flow_marginals:
+    input:
+        code=package_code("evaluation"),
+        flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
+        validation=f"{DATA}/{{study}}/validation.parquet",
+    output:
+        figure=report(f"{TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png", category="Training",
+                      subcategory="{study}", caption="../report/flow_marginals.rst"),
+    params:
+        function="cvsim6.evaluation:flow_marginals",
+        n_samples=20000,
+        seed=config["seed"],
+    log:
+        f"{LOGS}/flow_marginals/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/flow_marginals/{{study}}_delta{{delta}}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    conda:
+        "../envs/cvsim6.yaml"
+    script:
+        "../scripts/call.py"

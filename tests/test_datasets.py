@@ -109,3 +109,14 @@ def test_scatteritem_parsing():
     sizes = [datasets.shard_rows(54000, i, 7) for i in range(7)]
     assert sizes[0].start == 0 and sizes[-1].stop == 54000
     assert all(a.stop == b.start for a, b in zip(sizes, sizes[1:]))
+
+
+def test_shard_with_reference_method_matches_batch(tmp_path):
+    datasets.sample_prior(str(tmp_path / "p.parquet"), PRIOR, 2, 5, "structural")
+    datasets.simulate_shard(str(tmp_path / "p.parquet"), str(tmp_path / "b.parquet"), SIM)
+    datasets.simulate_shard(str(tmp_path / "p.parquet"), str(tmp_path / "r.parquet"), {**SIM, "method": "reference"})
+    b = datasets.read_dataset(tmp_path / "b.parquet")
+    r = datasets.read_dataset(tmp_path / "r.parquet")
+    assert (b["status"] == "ok").all() and (r["status"] == "ok").all()
+    np.testing.assert_allclose(b[list(registry.OUTPUT_NAMES)], r[list(registry.OUTPUT_NAMES)], rtol=2e-3, atol=0.05)
+    assert not b[list(registry.OUTPUT_NAMES)].equals(r[list(registry.OUTPUT_NAMES)])

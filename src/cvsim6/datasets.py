@@ -113,7 +113,8 @@ def shard_rows(n_rows: int, index: int, n_shards: int) -> slice:
 
 def simulate_shard(parameters: str, output: str, simulator: dict, shard: str = "1-of-1",
                    chunk_size: int = 1000) -> None:
-    """Simulate the parameter sets of one shard file (``shard = 'i-of-n'``, for the log).
+    """Simulate the parameter sets of one shard file (``shard = 'i-of-n'``, for the log)
+    with ``simulator['method']``: 'batch' (default) or 'reference' (slow; for checks).
 
     Writes the shard's rows with parameters, the 16 outputs and ``status``; logs
     progress and the rate (sets/s).
@@ -130,9 +131,13 @@ def simulate_shard(parameters: str, output: str, simulator: dict, shard: str = "
     with tqdm(total=len(P), unit="set", desc=f"shard {shard}", mininterval=5.0) as bar:
         for s in range(0, len(P), chunk_size):
             sl = slice(s, min(len(P), s + chunk_size))
-            out[sl], status[sl] = solver.simulate_batch(
-                P[sl], steps_per_cycle=simulator["steps_per_cycle"], n_cycles=simulator["n_cycles"],
-                window_cycles=simulator["window_cycles"])
+            if simulator.get("method", "batch") == "reference":
+                out[sl], status[sl] = solver.simulate_reference(
+                    P[sl], n_cycles=simulator["n_cycles"], window_cycles=simulator["window_cycles"])
+            else:
+                out[sl], status[sl] = solver.simulate_batch(
+                    P[sl], steps_per_cycle=simulator["steps_per_cycle"], n_cycles=simulator["n_cycles"],
+                    window_cycles=simulator["window_cycles"])
             bar.update(sl.stop - sl.start)
     dt = time.perf_counter() - t0
     log.info("shard %s: %d sets in %.2f s (%.0f sets/s), %d flagged",

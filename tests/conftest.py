@@ -1,6 +1,7 @@
 """Shared fixtures: parameter sets from both priors of the paper, seeded."""
 import numpy as np
 import pytest
+import torch
 
 from cvsim6 import priors, registry
 
@@ -23,3 +24,13 @@ def structural_sets() -> np.ndarray:
 @pytest.fixture(scope="session")
 def ehr_sets() -> np.ndarray:
     return prior_sample("ehr", 64, 12)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Small networks on a 2-core machine: one torch thread is fastest and immune to
+    oversubscription on a busy host."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

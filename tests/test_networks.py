@@ -10,14 +10,6 @@ from cvsim6 import networks as nw
 from cvsim6.registry import N_OUTPUTS, N_PARAMETERS, noise_std
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny networks: one thread is fastest and immune to oversubscription on a busy host."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 # ----------------------------------------------------------------------------- sizes
 @pytest.mark.parametrize("hidden, expected", [(60, 24_376), (80, 42_096)])

@@ -17,13 +17,6 @@ ENCDEC = dict(latent_dim=7, encoder_hidden=16, encoder_layers=3, decoder_hidden=
               beta_d=1.0, beta_v=0.05, beta_r=0.5, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def _synthetic(n: int, seed: int) -> pd.DataFrame:
     """Smooth map 23 -> 16 with outputs on the scale of the registry noise (x 10)."""

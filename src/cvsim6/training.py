@@ -294,7 +294,17 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
             w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) for k in columns})
 
 
-def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "") -> None:
+def _log_axis(ax, values: np.ndarray) -> None:
+    """Log-scale y; plain numbers on the ticks when the data span less than a decade."""
+    from matplotlib.ticker import FormatStrFormatter
+
+    ax.set_yscale("log")
+    if values.max() / values.min() < 10.0:
+        ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
+        ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
+
+
+def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", ylabel: str = "loss") -> None:
     """PNG loss curve from a losses CSV: train and test, log-scale y (linear when a loss is
     not positive, e.g. a flow NLL); encoder/decoder CSVs get a second panel per loss term."""
     import matplotlib
@@ -311,13 +321,13 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "") -> 
     vals = np.concatenate([df["train_loss"].to_numpy(), df["test_loss"].to_numpy()])
     vals = vals[np.isfinite(vals)]
     if vals.size and (vals > 0).all():
-        ax.set_yscale("log")
+        _log_axis(ax, vals)
     elif vals.size:
         lo, hi = np.quantile(vals, [0.0, 0.98])
         pad = 0.05 * (hi - lo if hi > lo else 1.0)
         ax.set_ylim(lo - pad, hi + pad)
     ax.set_xlabel("epoch")
-    ax.set_ylabel("loss")
+    ax.set_ylabel(ylabel)
     ax.set_title(title or "loss")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
@@ -328,8 +338,9 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "") -> 
             ax2.plot(df["epoch"], df[f"train_{p}"], color=color, lw=1.2, label=f"{p} (train)")
             ax2.plot(df["epoch"], df[f"test_{p}"], color=color, lw=1.2, ls="--", label=f"{p} (test)")
         pv = df[[f"train_{p}" for p in parts] + [f"test_{p}" for p in parts]].to_numpy().ravel()
-        if pv.size and (pv[np.isfinite(pv)] > 0).all():
-            ax2.set_yscale("log")
+        pv = pv[np.isfinite(pv)]
+        if pv.size and (pv > 0).all():
+            _log_axis(ax2, pv)
         ax2.set_xlabel("epoch")
         ax2.set_ylabel("unweighted term")
         ax2.set_title("loss terms")
@@ -452,7 +463,9 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     info = {**info, "epochs_done": done, "final_train_loss": result["train_loss"],
             "final_test_loss": result["test_loss"], "device": str(device), "torch": str(torch.__version__)}
     nw.save_model(model, model_path, info=info)
-    plot_losses(losses_path, figure, title=f"{stage.name} ({info.get('label', '')})".replace(" ()", ""))
+    ylabel = {"emulator": "MSE (standardized outputs)", "flow": "negative log-likelihood (nats)",
+              "encoder_decoder": "weighted total loss"}.get(stage.name, "loss")
+    plot_losses(losses_path, figure, title=f"{stage.name} ({info.get('label', '')})".replace(" ()", ""), ylabel=ylabel)
     return result
 
 

@@ -164,6 +164,9 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
     return arch, sched
 
 
+_REDUCTION_WORDS = {"sum": "per-sample sums", "mse": "means over components"}
+
+
 def write_network_tables(training: dict, study: str, architecture_csv: str, architecture_md: str,
                          schedule_csv: str, schedule_md: str) -> None:
     """Write the architecture and schedule tables of ``study`` (CSV + Markdown)."""
@@ -173,5 +176,6 @@ def write_network_tables(training: dict, study: str, architecture_csv: str, arch
                 caption=f"inVAErt modules, {study} study (config in use; paper counts beside)")
     write_table(sched, schedule_csv, schedule_md,
                 caption=f"Training schedules, {study} study (config in use). [beta_d, beta_v, beta_r] = "
-                        f"[{d['beta_d']}, {d['beta_v']}, {d['beta_r']}], dim(w) = {d['latent_dim']}, "
+                        f"[{d['beta_d']}, {d['beta_v']}, {d['beta_r']}] on the decoder, KL and re-evaluation terms "
+                        f"(squared errors as {_REDUCTION_WORDS[d.get('reduction', 'sum')]}), dim(w) = {d['latent_dim']}, "
                         f"noise levels {training['studies'][study]['noise_levels']}")

@@ -110,6 +110,28 @@ def test_encoder_decoder_trains(data, emulator, tmp_path):
     assert isinstance(model, nw.EncoderDecoder)
 
 
+@pytest.mark.parametrize("config_file", ["config.yaml", "paper.yaml"])
+def test_configured_loss_weights_keep_the_latent_space_alive(config_file, data, emulator, tmp_path):
+    """The shipped weights must leave information in w: the synthetic map has 7 more inputs
+    than outputs, so an informative latent space has KL well above 0 nats. The paper's table
+    values read literally (KL weighted 2000, summed errors) collapse it: KL -> 0."""
+    from pathlib import Path
+
+    from cvsim6.config import load_config
+
+    cfg = load_config(Path(__file__).parents[1] / "config" / config_file)
+    shipped = cfg["training"]["studies"]["structural"]["encoder_decoder"]
+    weights = {k: shipped[k] for k in ("beta_d", "beta_v", "beta_r", "reduction")}
+    kl = {}
+    for name, w in (("shipped", weights), ("literal", dict(beta_d=1, beta_v=2000, beta_r=20, reduction="sum"))):
+        hyper = dict(ENCDEC, **w, epochs=30)
+        tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                 hyper=hyper, seed=0, device="cpu", progress=False, **_paths(tmp_path, name))
+        kl[name] = pd.read_csv(tmp_path / f"{name}.csv")["test_kl"].iloc[-1]
+    assert kl["shipped"] > 2.0, kl
+    assert kl["literal"] < 0.05, kl
+
+
 # ----------------------------------------------------------------------------- noise injection
 def _stages(noise_level):
     rng = np.random.default_rng(5)

@@ -121,6 +121,32 @@ def test_flagged_row_leaves_other_rows_intact(structural_sets):
     assert (df.drop(index=2)["status"] == "ok").all()
 
 
+def test_out_of_domain_rows_flagged_on_request(structural_sets):
+    """invalid="flag": out-of-domain rows get status 7 and no outputs; the others are the
+    same bits as simulating them alone; outside_domain agrees with validate_parameters."""
+    P = structural_sets[:6].copy()
+    P[1, I["C_v"]] = -41.6
+    P[3, I["r_sys"]] = 0.7
+    P[4, I["R_a"]] = np.inf
+    with pytest.raises(model.ParameterError, match="C_v = -41.6"):
+        solver.simulate_batch(P)
+    out, st = solver.simulate_batch(P, invalid="flag")
+    bad = np.array([False, True, False, True, True, False])
+    assert np.array_equal(model.outside_domain(P), bad)
+    for r in range(len(P)):
+        raises = False
+        try:
+            model.validate_parameters(P[r:r + 1])
+        except model.ParameterError:
+            raises = True
+        assert raises == bad[r]
+    assert (st[bad] == 7).all() and np.isnan(out[bad]).all()
+    alone, st_alone = solver.simulate_batch(P[~bad])
+    assert np.array_equal(out[~bad], alone) and np.array_equal(st[~bad], st_alone)
+    with pytest.raises(ValueError, match="'skip'"):
+        solver.simulate_batch(P, invalid="skip")
+
+
 def test_bad_input_raises_naming_row_and_parameter(default_params):
     P = np.repeat(default_params[None], 3, axis=0)
     P[1, I["C_pv"]] = -0.5

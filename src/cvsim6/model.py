@@ -58,32 +58,38 @@ def as_parameter_array(params) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+_POSITIVE = [i for i, p in enumerate(PARAMETERS) if p.kind in ("compliance", "resistance") or p.name == "Hr"]
+
+
+def outside_domain(params: np.ndarray) -> np.ndarray:
+    """Boolean mask (N,) of the rows :func:`validate_parameters` rejects: a value not
+    finite, heart rate, a compliance or a resistance <= 0, or ``r_sys`` outside (0, 2/3)."""
+    arr = np.atleast_2d(np.asarray(params, dtype=float))
+    with np.errstate(invalid="ignore"):
+        r = arr[:, _I["r_sys"]]
+        return (~np.isfinite(arr).all(axis=1) | (arr[:, _POSITIVE] <= 0).any(axis=1)
+                | (r <= 0) | (r >= 2.0 / 3.0))
+
+
 def validate_parameters(params: np.ndarray) -> None:
-    """Raise :class:`ParameterError` naming the first bad parameter and row (0-based).
+    """Raise :class:`ParameterError` naming the first bad row (0-based) and its parameter.
 
     Checked: every value finite; heart rate, compliances and resistances > 0;
     ``r_sys`` in (0, 2/3) so that the activation (1.5 T_sys long) fits in one cycle.
     """
-    arr = np.asarray(params, dtype=float)
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        raise ParameterError(
-            f"row {row}: parameter {PARAMETER_NAMES[col]} = {float(arr[row, col])!r} is not finite"
-        )
-    positive = [i for i, p in enumerate(PARAMETERS) if p.kind in ("compliance", "resistance") or p.name == "Hr"]
-    sub = arr[:, positive]
-    if (sub <= 0).any():
-        row, j = np.argwhere(sub <= 0)[0]
-        p = PARAMETERS[positive[j]]
-        raise ParameterError(
-            f"row {row}: parameter {p.name} = {float(arr[row, positive[j]])!r} {p.unit} must be > 0"
-        )
-    r = arr[:, _I["r_sys"]]
-    out = (r <= 0) | (r >= 2.0 / 3.0)
-    if out.any():
-        row = int(np.argmax(out))
-        raise ParameterError(f"row {row}: parameter r_sys = {float(r[row])!r} must lie in (0, 2/3)")
+    arr = np.atleast_2d(np.asarray(params, dtype=float))
+    bad = outside_domain(arr)
+    if not bad.any():
+        return
+    row = int(np.argmax(bad))
+    x = arr[row]
+    for col in np.flatnonzero(~np.isfinite(x)):
+        raise ParameterError(f"row {row}: parameter {PARAMETER_NAMES[col]} = {float(x[col])!r} is not finite")
+    for col in _POSITIVE:
+        if x[col] <= 0:
+            p = PARAMETERS[col]
+            raise ParameterError(f"row {row}: parameter {p.name} = {float(x[col])!r} {p.unit} must be > 0")
+    raise ParameterError(f"row {row}: parameter r_sys = {float(x[_I['r_sys']])!r} must lie in (0, 2/3)")
 
 
 def cycle_times(p: np.ndarray) -> tuple[float, float]:

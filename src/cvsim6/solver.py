@@ -66,6 +66,8 @@ STATUS_REASONS = {
     4: "output outside the physiological range (LVEF not in (0,1) or CO <= 0)",
     5: "total volume not conserved",
     6: "integration failed",
+    7: "parameters outside the model's domain (not finite, Hr, a compliance or resistance <= 0, "
+       "or r_sys not in (0, 2/3))",
 }
 
 DEFAULT_STEPS_PER_CYCLE = 600
@@ -92,20 +94,33 @@ def simulate_batch(
     window_cycles: int = DEFAULT_WINDOW_CYCLES,
     progress: bool = False,
     chunk_size: int = 1000,
+    invalid: str = "raise",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate an (N, 23) array of parameter sets with the batch SDIRK kernel.
 
     Returns ``(outputs, status)``: outputs (N, 16) in registry order and units,
     status (N,) integer codes (:data:`STATUS_REASONS`; 0 = ok). A row that fails or
     leaves the physiological range is flagged; the other rows are unaffected.
-    Raises :class:`cvsim6.model.ParameterError` for invalid input, naming the row.
+    Rows outside the model's domain (:func:`cvsim6.model.outside_domain`) raise
+    :class:`cvsim6.model.ParameterError` naming the row (``invalid="raise"``) or are
+    left unsimulated with status 7 (``invalid="flag"``, e.g. for network predictions).
     """
     _check_schedule(steps_per_cycle, n_cycles, window_cycles)
     P = model.as_parameter_array(params)
-    model.validate_parameters(P)
+    if invalid == "raise":
+        model.validate_parameters(P)
+    elif invalid != "flag":
+        raise ValueError(f"invalid must be 'raise' or 'flag', got {invalid!r}")
     n = P.shape[0]
     out = np.full((n, N_OUTPUTS), np.nan)
     status = np.zeros(n, dtype=np.int64)
+    bad = model.outside_domain(P)
+    if bad.any():
+        status[bad] = 7
+        keep = np.flatnonzero(~bad)
+        o, s = simulate_batch(P[keep], steps_per_cycle, n_cycles, window_cycles, progress, chunk_size)
+        out[keep], status[keep] = o, s
+        return out, status
     bar = None
     if progress:
         from tqdm import tqdm

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from . import datasets, evaluation, identifiability, inversion, paper_values, priors, solver
+from .model import outside_domain
 from .registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
 
 log = logging.getLogger(__name__)
@@ -28,8 +29,28 @@ PAPER_HEADLINES = {"max_rel_error_manifold": 0.00139, "modes_99": 12, "energy_at
 
 
 def _simulate(v: np.ndarray, simulator: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Decoded parameter sets through the batch simulator; sets outside the model's domain
+    (a decoder can extrapolate, e.g. a negative compliance) get status 7, not an error."""
     return solver.simulate_batch(v, steps_per_cycle=simulator["steps_per_cycle"],
-                                 n_cycles=simulator["n_cycles"], window_cycles=simulator["window_cycles"])
+                                 n_cycles=simulator["n_cycles"], window_cycles=simulator["window_cycles"],
+                                 invalid="flag")
+
+
+def _flag_counts(status: np.ndarray) -> dict[str, int]:
+    """Sets outside the model's domain and sets the simulator flagged (status codes)."""
+    return {"outside_domain": int((status == 7).sum()), "flagged": int(((status != 0) & (status != 7)).sum())}
+
+
+def _flag_words(status: np.ndarray) -> str:
+    c = _flag_counts(status)
+    return f"{c['outside_domain']} decoded sets outside the model's domain, {c['flagged']} flagged by the simulator"
+
+
+def _manifold_samples(samples: str) -> tuple[np.ndarray, int]:
+    """Decoded manifold samples inside the model's domain (N, 23), and how many were not."""
+    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
+    bad = outside_domain(v)
+    return v[~bad], int(bad.sum())
 
 
 def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, simulator: dict, seed: int) -> None:
@@ -45,8 +66,9 @@ def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, si
     stats = evaluation.error_statistics(y[ok], yhat[ok])
     write_table(evaluation.error_table(stats, paper_values.INVERSION_STRUCTURAL), csv, md,
                 caption=f"Absolute reconstruction error of the amortized inversion on {ok.sum():,} of "
-                        f"{len(y):,} validation outputs (decoded parameters simulated; {int((~ok).sum())} "
-                        f"decoded sets flagged by the simulator); paper table 3 beside")
+                        f"{len(y):,} validation outputs (decoded parameters simulated; {_flag_words(st)}); "
+                        "paper table 3 beside")
+    Path(csv).with_suffix(".json").write_text(json.dumps({"n": int(len(y)), **_flag_counts(st)}, indent=2) + "\n")
 
 
 def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples: int, seed: int) -> None:
@@ -85,6 +107,8 @@ def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulato
     quantities = (("P_a", 1, "P_a_sys", "P_a_dia"), ("P_r", 3, "P_r_sys", "P_r_dia"),
                   ("P_pa", 4, "P_pa_sys", "P_pa_dia"), ("V_l", 0, "V_l_sys", "V_l_dia"))
     for p, c in zip(params, colors):
+        if outside_domain(p)[0]:
+            continue
         traj, _, _ = solver.simulate_trajectory(p, steps_per_cycle=simulator["steps_per_cycle"],
                                                 n_cycles=simulator["n_cycles"],
                                                 window_cycles=simulator["window_cycles"])
@@ -117,20 +141,24 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, md: str, f
     v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()[:n_reconstruct]
     y_star = _y_star(observation)
     yhat, st = _simulate(v, simulator)
+    if not (st == 0).any():
+        raise ValueError(f"{samples}: none of the {len(v)} decoded sets simulated ({_flag_words(st)})")
     rel = np.abs(yhat[st == 0] - y_star) / np.abs(y_star)
     worst = rel.max(axis=0)
     df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "max relative error": worst})
-    summary = {"n": int(len(v)), "flagged": int((st != 0).sum()), "max_rel_error": float(worst.max()),
+    summary = {"n": int(len(v)), **_flag_counts(st), "max_rel_error": float(worst.max()),
                "worst_output": OUTPUT_NAMES[int(np.argmax(worst))],
                "paper_max_rel_error": PAPER_HEADLINES["max_rel_error_manifold"]}
-    write_table(df, csv, md, caption=f"Max relative error |f(v) - y*| / |y*| over {len(v)} decoded "
-                                     f"parameter sets: {worst.max():.3%} (paper: about 0.139%)")
+    write_table(df, csv, md, caption=f"Max relative error |f(v) - y*| / |y*| over {int((st == 0).sum())} of "
+                                     f"{len(v)} decoded parameter sets ({_flag_words(st)}): "
+                                     f"{worst.max():.3%} (paper: about 0.139%)")
     Path(csv).with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     cmap = plt.get_cmap("viridis")
     _trajectory_panels(axes.flat, v[:n_traces], y_star, simulator,
                        [cmap(i / max(1, n_traces - 1)) for i in range(n_traces)])
-    fig.suptitle(f"{n_traces} of {len(v)} decoded parameter sets for y* (dashed: targets in y*)")
+    fig.suptitle(f"The first {n_traces} of {len(v)} decoded parameter sets for y*, those inside the "
+                 "model's domain (dashed: targets in y*)")
     fig.tight_layout()
     save_figure(fig, figure)
 
@@ -141,7 +169,8 @@ def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -
 
     from .plots import save_figure
 
-    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()[:n_lines]
+    v, n_out = _manifold_samples(samples)
+    v = v[:n_lines]
     lo, hi = priors.prior_bounds(prior)
     pad = 0.05 * (hi - lo)
     lo, hi = lo - pad, hi + pad
@@ -164,7 +193,8 @@ def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -
         for side in ("top", "right", "left"):
             ax.spines[side].set_visible(False)
     fig.suptitle(f"Non-identifiable manifold of y*: {len(v)} decoded parameter sets "
-                 "(axes span the prior bounds +5%; units as the input table)")
+                 f"(axes span the prior bounds +5%; units as the input table; {n_out} sets outside "
+                 "the model's domain left out)")
     fig.tight_layout()
     save_figure(fig, figure)
 
@@ -175,13 +205,13 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99
 
     from .plots import save_figure
 
-    v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
+    v, n_out = _manifold_samples(samples)
     s = identifiability.manifold_svd(v)
     ce = identifiability.cumulative_energy(s)
     n, e = identifiability.modes_for_energy(s, level)
     pd.DataFrame({"mode": np.arange(1, len(s) + 1), "singular_value": s, "cumulative_energy": ce}).to_csv(csv, index=False)
     Path(csv).with_suffix(".json").write_text(json.dumps(
-        {"n_samples": int(len(v)), "level": level, "modes": n, "energy": e,
+        {"n_samples": int(len(v)), "outside_domain": n_out, "level": level, "modes": n, "energy": e,
          "paper_modes": PAPER_HEADLINES["modes_99"], "paper_energy": PAPER_HEADLINES["energy_at_modes"]},
         indent=2) + "\n")
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
@@ -221,15 +251,17 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md
     yhat, st = _simulate(v.reshape(-1, len(PARAMETER_NAMES)), simulator)
     rel = np.abs(yhat[:, ~miss] - y_star[~miss]) / np.abs(y_star[~miss])
     rel = rel[st == 0]
+    if not len(rel):
+        raise ValueError(f"none of the {len(st)} decoded completions simulated ({_flag_words(st)})")
     table = pd.DataFrame(best, columns=list(OUTPUT_NAMES))
     table.insert(0, "log_density", lp)
     table.insert(0, "rank", np.arange(1, top_k + 1))
     write_table(table, csv, md, caption=f"Top {top_k} completions of y* without {', '.join(missing)} "
                                         f"({n_flow_samples:,} flow samples); max relative error of the "
-                                        f"{top_k}x{n_latent} simulated reconstructions on the observed "
-                                        f"entries: {rel.max():.3%} (paper: about 0.408%)")
+                                        f"{top_k}x{n_latent} decoded sets on the observed entries "
+                                        f"({_flag_words(st)}): {rel.max():.3%} (paper: about 0.408%)")
     Path(csv).with_suffix(".json").write_text(json.dumps(
-        {"max_rel_error_observed": float(rel.max()), "flagged": int((st != 0).sum()),
+        {"max_rel_error_observed": float(rel.max()), **_flag_counts(st),
          "paper": PAPER_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     colors = plt.get_cmap("tab10").colors
@@ -252,7 +284,7 @@ def jacobian_check(samples: str, csv: str, md: str, figure: str, prior: dict, si
     from .plots import save_figure
     from .tables import write_table
 
-    v_all = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
+    v_all, _ = _manifold_samples(samples)
     v = v_all[:n_points]
     lo, hi = priors.prior_bounds(prior)
     w = hi - lo

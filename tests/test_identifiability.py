@@ -11,6 +11,8 @@ def test_cumulative_energy_and_modes():
     np.testing.assert_allclose(idf.cumulative_energy(s), [9 / 14, 13 / 14, 1.0, 1.0])
     assert idf.modes_for_energy(s, 0.9) == (2, pytest.approx(13 / 14))
     assert idf.modes_for_energy(s, 0.99)[0] == 3
+    assert idf.modes_for_energy(np.zeros(4), 0.99) == (0, 1.0)  # samples that do not vary
+    np.testing.assert_array_equal(idf.cumulative_energy(np.zeros(3)), 1.0)
 
 
 def test_manifold_svd_of_samples_on_a_plane():
@@ -20,6 +22,21 @@ def test_manifold_svd_of_samples_on_a_plane():
     s = idf.manifold_svd(X)
     assert s[2] < 1e-10 * s[0]
     assert idf.modes_for_energy(s, 0.999999)[0] == 2
+
+
+def test_manifold_svd_standardized_does_not_depend_on_units():
+    """Three independent columns, one in units a million times larger: raw, one mode holds
+    99% of the energy; standardized, all three are needed (the paper's scaling)."""
+    rng = np.random.default_rng(2)
+    X = rng.uniform(-1.0, 1.0, size=(2000, 3))
+    X[:, 0] = X[:, 0] * 1e6 + 5e6
+    assert idf.modes_for_energy(idf.manifold_svd(X, scaling="none"), 0.99)[0] == 1
+    s = idf.manifold_svd(X)
+    assert idf.modes_for_energy(s, 0.99)[0] == 3
+    np.testing.assert_allclose(s, np.sqrt(2000.0), rtol=0.1)  # unit-variance columns, near-orthogonal
+    np.testing.assert_allclose(idf.manifold_svd(X * [1.0, 1e-3, 7.0]), s)
+    with pytest.raises(ValueError, match="scaling"):
+        idf.manifold_svd(X, scaling="minmax")
 
 
 def test_jacobian_rank_of_a_map_with_known_null_space():

@@ -61,6 +61,27 @@ def test_decode_latent_shapes_and_seed():
     assert not np.allclose(a[:, 0], a[:, 1])  # different latent draws, different parameters
 
 
+def test_decode_latent_corrector_steps():
+    """0 steps = the decoder at w ~ N(0, I); k steps = k rounds of w <- mu(NN_v(v)) by hand."""
+    torch.manual_seed(0)
+    ed = networks.EncoderDecoder()
+    y = np.random.default_rng(1).normal(size=(2, 16)) * 10 + 50
+    w = torch.randn(2 * 4, ed.latent_dim, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    y_rep = np.repeat(y, 4, axis=0)
+    plain = inversion.decode_latent(ed, y, 4, seed=3)
+    np.testing.assert_array_equal(plain.reshape(-1, 23), ed.invert(y_rep, w.float().numpy()))
+    v = plain.reshape(-1, 23)
+    with torch.no_grad():
+        for _ in range(2):
+            mu, _ = ed.encode(ed.x_scaler.transform(torch.as_tensor(v, dtype=torch.float32)))
+            v = ed.invert(y_rep, mu.numpy())
+    corrected = inversion.decode_latent(ed, y, 4, seed=3, corrector_steps=2)
+    np.testing.assert_allclose(corrected.reshape(-1, 23), v, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(corrected, plain)
+    with pytest.raises(ValueError, match="corrector_steps"):
+        inversion.decode_latent(ed, y, 4, corrector_steps=-1)
+
+
 def test_ood_percentile():
     ref = np.arange(100.0)
     assert inversion.ood_percentile(-1.0, ref) == 0.0

@@ -48,7 +48,7 @@ def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
                                              str(tmp_path / "rec.png"), sim, n_reconstruct=3, n_traces=3)
     summary = json.loads(csv.with_suffix(".json").read_text())
     assert summary["outside_domain"] == 1 and summary["flagged"] == 0
-    assert summary["max_rel_error"] < 1e-12  # rows 0 and 2 are y*'s own parameters
+    assert summary["max_rel_l2_error"] < 1e-12 and summary["max_rel_error_per_output"] < 1e-12  # rows 0 and 2 are y*'s own parameters
     structural_study.manifold_svd_figure(str(samples), str(tmp_path / "svd.png"), str(tmp_path / "svd.csv"))
     svd = json.loads((tmp_path / "svd.json").read_text())
     assert svd["n_samples"] == 3 and svd["outside_domain"] == 1
@@ -66,7 +66,7 @@ def test_structural_stage_end_to_end(tmp_path):
     obs = pd.read_csv(work / "results/tables/structural_observation.csv")
     np.testing.assert_allclose(obs["y*"], structural_study.PAPER_Y_STAR)
     svd = json.loads((work / "results/structural/manifold_svd.json").read_text())
-    assert 1 <= svd["modes"] <= 23 and svd["energy"] >= 0.99
+    assert 0 <= svd["modes"] <= 23 and svd["energy"] >= 0.99  # 0: smoke draws that do not vary
     assert svd["n_samples"] + svd["outside_domain"] == 200
     miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
     assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()

@@ -87,7 +87,8 @@ def _invert(args: argparse.Namespace) -> int:
         df = invert_observations(obs, load_model(files["flow"]), load_model(files["encoder_decoder"]),
                                  load_model(files["emulator"]), n_latent=args.samples,
                                  n_flow_samples=args.flow_samples, seed=args.seed, reference_outputs=ref,
-                                 n_reference=args.reference_size, progress=args.progress)
+                                 n_reference=args.reference_size, progress=args.progress,
+                                 corrector_steps=args.corrector_steps)
     except ValueError as exc:
         print(f"error: {args.observations}: {exc}", file=sys.stderr)
         return 2
@@ -123,6 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
     inv.add_argument("--reference", help="Parquet split of simulated data for the OOD percentile "
                                           "(default: samples of the flow)")
     inv.add_argument("--reference-size", type=int, default=100, help="reference rows for the OOD percentile")
+    inv.add_argument("--corrector-steps", type=int, default=2,
+                     help="predictor-corrector rounds when decoding (default 2, as the paper's code; 0 = off)")
     inv.add_argument("--seed", type=int, default=0)
     inv.add_argument("--progress", action="store_true", help="show a progress bar")
     inv.set_defaults(func=_invert)

@@ -39,13 +39,15 @@ PRED = "pred_"  # prefix of emulated-output columns (Hr is both a parameter and 
 def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_latent: int = 100,
                         n_flow_samples: int = 200_000, seed: int = 0,
                         reference_outputs: np.ndarray | None = None, n_reference: int = 100,
-                        reference_flow_samples: int = 4096, progress: bool = False) -> pd.DataFrame:
+                        reference_flow_samples: int = 4096, progress: bool = False,
+                        corrector_steps: int = 0) -> pd.DataFrame:
     """Invert each row of ``observations`` (any subset of the 16 output columns, NaN = missing).
 
     Returns a long table: one row per observation and latent draw with ``id`` (the
     observation's index), ``draw``, the 23 parameters, the 16 emulated outputs
     (``pred_<name>``), the completion used (``completed_<name>``), ``log_density`` of
     that completion and ``ood_percentile`` (NaN without ``reference_outputs``).
+    ``corrector_steps``: predictor-corrector rounds of :func:`cvsim6.inversion.decode_latent`.
     """
     unknown = [c for c in observations.columns if c not in OUTPUT_NAMES]
     if unknown:
@@ -63,7 +65,8 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
         if not np.isfinite(y).any():
             raise ValueError(f"observation {pid!r}: no output given")
         best, lp = inversion.complete_missing(flow, y, n_flow_samples, top_k=1, seed=seed + 7919 * k)
-        v = inversion.decode_latent(encdec, best, n_latent, seed=seed + 104729 * k)[0]
+        v = inversion.decode_latent(encdec, best, n_latent, seed=seed + 104729 * k,
+                                    corrector_steps=corrector_steps)[0]
         yhat = np.asarray(emulator.predict(v))
         pct = np.nan
         if reference_outputs is not None:
@@ -86,7 +89,8 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
 
 def invert_ehr_patients(patients: str, flow: str, encoder_decoder: str, emulator: str, reference: str,
                         predictions: str, noise_level: float, n_latent: int, n_flow_samples: int,
-                        n_reference: int, reference_flow_samples: int, seed: int) -> None:
+                        n_reference: int, reference_flow_samples: int, seed: int,
+                        corrector_steps: int = 0) -> None:
     """Workflow step: invert the selected EHR patients with the networks of one noise level."""
     from .datasets import load_split
     from .networks import load_model
@@ -96,7 +100,8 @@ def invert_ehr_patients(patients: str, flow: str, encoder_decoder: str, emulator
     df = invert_observations(obs, load_model(flow), load_model(encoder_decoder), load_model(emulator),
                              n_latent=n_latent, n_flow_samples=n_flow_samples, seed=seed,
                              reference_outputs=y_ref, n_reference=n_reference,
-                             reference_flow_samples=reference_flow_samples, progress=True)
+                             reference_flow_samples=reference_flow_samples, progress=True,
+                             corrector_steps=corrector_steps)
     df.insert(1, "noise_level", float(noise_level))
     Path(predictions).parent.mkdir(parents=True, exist_ok=True)
     df.to_parquet(predictions, index=False)

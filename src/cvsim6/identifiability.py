@@ -23,23 +23,38 @@ from .registry import noise_std
 
 
 def cumulative_energy(singular_values: np.ndarray) -> np.ndarray:
-    """Cumulative energy of singular values (fraction in [0, 1])."""
+    """Cumulative energy of singular values (fraction in [0, 1]); all ones for a zero matrix
+    (nothing to reconstruct)."""
     e = np.asarray(singular_values, float) ** 2
-    return np.cumsum(e) / e.sum()
+    total = e.sum()
+    return np.cumsum(e) / total if total > 0 else np.ones_like(e)
 
 
 def modes_for_energy(singular_values: np.ndarray, level: float = 0.99) -> tuple[int, float]:
-    """Smallest number of modes whose cumulative energy reaches ``level``, and that energy."""
-    ce = cumulative_energy(singular_values)
+    """Smallest number of modes whose cumulative energy reaches ``level``, and that energy
+    (``(0, 1.0)`` for a zero matrix, e.g. samples that do not vary at all)."""
+    s = np.asarray(singular_values, float)
+    if not (s**2).sum() > 0:
+        return 0, 1.0
+    ce = cumulative_energy(s)
     n = int(np.searchsorted(ce, level - 1e-15) + 1)
     return n, float(ce[n - 1])
 
 
-def manifold_svd(samples: np.ndarray, center: bool = False) -> np.ndarray:
-    """Singular values of the (n, d) matrix of manifold samples (optionally centred)."""
+def manifold_svd(samples: np.ndarray, scaling: str = "standardize") -> np.ndarray:
+    """Singular values of the (n, d) matrix of manifold samples.
+
+    ``scaling="standardize"`` (the paper's code: scikit-learn's StandardScaler) centres each
+    column and divides it by its standard deviation, so that the count of modes does not
+    depend on the parameters' units; ``"none"`` takes the raw matrix. Constant columns stay 0.
+    """
     X = np.asarray(samples, float)
-    if center:
+    if scaling == "standardize":
         X = X - X.mean(axis=0)
+        sd = X.std(axis=0)
+        X = X / np.where(sd > 0, sd, 1.0)
+    elif scaling != "none":
+        raise ValueError(f"scaling must be 'standardize' or 'none', got {scaling!r}")
     return np.linalg.svd(X, compute_uv=False)
 
 

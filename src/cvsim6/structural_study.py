@@ -53,14 +53,16 @@ def _manifold_samples(samples: str) -> tuple[np.ndarray, int]:
     return v[~bad], int(bad.sum())
 
 
-def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, simulator: dict, seed: int) -> None:
-    """Table 3: decoder on the validation outputs (one w each), pushed through the simulator."""
+def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, simulator: dict, seed: int,
+                    corrector_steps: int = 0) -> None:
+    """Table 3: decoder on the validation outputs (one w each, ``corrector_steps`` rounds of
+    predictor-corrector sampling), pushed through the simulator."""
     from .networks import load_model
     from .tables import write_table
 
     ed = load_model(encoder_decoder)
     _, y = datasets.load_split(validation)
-    v = inversion.decode_latent(ed, y, 1, seed=seed)[:, 0]
+    v = inversion.decode_latent(ed, y, 1, seed=seed, corrector_steps=corrector_steps)[:, 0]
     yhat, st = _simulate(v, simulator)
     ok = st == 0
     stats = evaluation.error_statistics(y[ok], yhat[ok])
@@ -93,11 +95,14 @@ def _y_star(observation: str) -> np.ndarray:
     return pd.read_csv(observation)["y*"].to_numpy(float)
 
 
-def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samples: int, seed: int) -> None:
-    """Decode y* with ``n_samples`` latent draws: parameter sets on the manifold M_y* (Parquet)."""
+def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samples: int, seed: int,
+                    corrector_steps: int = 0) -> None:
+    """Decode y* with ``n_samples`` latent draws (``corrector_steps`` predictor-corrector
+    rounds): parameter sets on the manifold M_y* (Parquet)."""
     from .networks import load_model
 
-    v = inversion.decode_latent(load_model(encoder_decoder), _y_star(observation)[None], n_samples, seed=seed)[0]
+    v = inversion.decode_latent(load_model(encoder_decoder), _y_star(observation)[None], n_samples, seed=seed,
+                                corrector_steps=corrector_steps)[0]
     datasets.write_dataset(pd.DataFrame(v, columns=list(PARAMETER_NAMES)), samples)
 
 
@@ -143,15 +148,19 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, md: str, f
     yhat, st = _simulate(v, simulator)
     if not (st == 0).any():
         raise ValueError(f"{samples}: none of the {len(v)} decoded sets simulated ({_flag_words(st)})")
-    rel = np.abs(yhat[st == 0] - y_star) / np.abs(y_star)
+    ok = st == 0
+    rel = np.abs(yhat[ok] - y_star) / np.abs(y_star)
     worst = rel.max(axis=0)
+    l2 = evaluation.relative_l2_errors(np.broadcast_to(y_star, yhat[ok].shape), yhat[ok])
     df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "max relative error": worst})
-    summary = {"n": int(len(v)), **_flag_counts(st), "max_rel_error": float(worst.max()),
-               "worst_output": OUTPUT_NAMES[int(np.argmax(worst))],
-               "paper_max_rel_error": PAPER_HEADLINES["max_rel_error_manifold"]}
-    write_table(df, csv, md, caption=f"Max relative error |f(v) - y*| / |y*| over {int((st == 0).sum())} of "
-                                     f"{len(v)} decoded parameter sets ({_flag_words(st)}): "
-                                     f"{worst.max():.3%} (paper: about 0.139%)")
+    summary = {"n": int(len(v)), **_flag_counts(st), "max_rel_l2_error": float(l2.max()),
+               "median_rel_l2_error": float(np.median(l2)),
+               "paper_max_rel_l2_error": PAPER_HEADLINES["max_rel_error_manifold"],
+               "max_rel_error_per_output": float(worst.max()), "worst_output": OUTPUT_NAMES[int(np.argmax(worst))]}
+    write_table(df, csv, md, caption=f"{int(ok.sum())} of {len(v)} decoded parameter sets for y* simulated "
+                                     f"({_flag_words(st)}): largest relative l2 error ||f(v) - y*|| / ||y*|| "
+                                     f"{l2.max():.3%} (the paper's measure: about 0.139%); below, the largest "
+                                     "relative error of each output")
     Path(csv).with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     cmap = plt.get_cmap("viridis")
@@ -218,7 +227,7 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99
     k = np.arange(1, len(s) + 1)
     a.semilogy(k, s, "o-")
     a.set_xlabel("mode")
-    a.set_ylabel("singular value")
+    a.set_ylabel("singular value (standardized samples)")
     b.plot(k, ce, "o-")
     b.axhline(level, color="gray", ls="--")
     b.axvline(n, color="tab:red", ls=":")
@@ -227,15 +236,17 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99
     b.set_ylabel("cumulative energy")
     for ax in (a, b):
         ax.grid(alpha=0.3)
-    fig.suptitle(f"SVD of {len(v):,} parameter sets on the manifold of y* (paper: 12 modes, 99.28%)")
+    fig.suptitle(f"SVD of {len(v):,} standardized parameter sets on the manifold of y* "
+                 "(paper: 12 modes, 99.28%)")
     fig.tight_layout()
     save_figure(fig, figure)
 
 
 def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md: str, figure: str,
-                 simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int) -> None:
+                 simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int,
+                 corrector_steps: int = 0) -> None:
     """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
-    max relative error on the observed entries (paper: ~0.408%) and the trajectory figure."""
+    largest relative l2 error on the observed entries (paper: ~0.408%) and the trajectory figure."""
     import matplotlib.pyplot as plt
 
     from .networks import load_model
@@ -247,21 +258,22 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md
     miss = np.array([n in missing for n in OUTPUT_NAMES])
     y_obs[miss] = np.nan
     best, lp = inversion.complete_missing(load_model(flow), y_obs, n_flow_samples, top_k=top_k, seed=seed)
-    v = inversion.decode_latent(load_model(encoder_decoder), best, n_latent, seed=seed)  # (k, n, 23)
+    v = inversion.decode_latent(load_model(encoder_decoder), best, n_latent, seed=seed,
+                                corrector_steps=corrector_steps)  # (k, n, 23)
     yhat, st = _simulate(v.reshape(-1, len(PARAMETER_NAMES)), simulator)
-    rel = np.abs(yhat[:, ~miss] - y_star[~miss]) / np.abs(y_star[~miss])
-    rel = rel[st == 0]
-    if not len(rel):
+    if not (st == 0).any():
         raise ValueError(f"none of the {len(st)} decoded completions simulated ({_flag_words(st)})")
+    y_obs_part = np.broadcast_to(y_star[~miss], yhat[st == 0][:, ~miss].shape)
+    l2 = evaluation.relative_l2_errors(y_obs_part, yhat[st == 0][:, ~miss])
     table = pd.DataFrame(best, columns=list(OUTPUT_NAMES))
     table.insert(0, "log_density", lp)
     table.insert(0, "rank", np.arange(1, top_k + 1))
     write_table(table, csv, md, caption=f"Top {top_k} completions of y* without {', '.join(missing)} "
-                                        f"({n_flow_samples:,} flow samples); max relative error of the "
-                                        f"{top_k}x{n_latent} decoded sets on the observed entries "
-                                        f"({_flag_words(st)}): {rel.max():.3%} (paper: about 0.408%)")
+                                        f"({n_flow_samples:,} flow samples); the {top_k}x{n_latent} decoded sets "
+                                        f"simulated ({_flag_words(st)}): largest relative l2 error over "
+                                        f"the observed entries {l2.max():.3%} (paper: about 0.408%)")
     Path(csv).with_suffix(".json").write_text(json.dumps(
-        {"max_rel_error_observed": float(rel.max()), **_flag_counts(st),
+        {"max_rel_l2_error_observed": float(l2.max()), **_flag_counts(st),
          "paper": PAPER_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     colors = plt.get_cmap("tab10").colors

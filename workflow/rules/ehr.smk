@@ -66,6 +66,7 @@ rule invert_ehr_patients:
         n_flow_samples=config["ehr_study"]["n_flow_samples"],
         n_reference=config["ehr_study"]["n_reference"],
         reference_flow_samples=config["ehr_study"]["reference_flow_samples"],
+        corrector_steps=config["ehr_study"]["corrector_steps"],
         seed=config["seed"],
     log:
         f"{LOGS}/invert_ehr_patients/delta{{delta}}.log",

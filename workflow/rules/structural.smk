@@ -17,6 +17,7 @@ rule structural_inversion_table:
     params:
         function="cvsim6.structural_study:inversion_table",
         simulator=config["simulator"],
+        corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
         f"{LOGS}/structural_inversion_table.log",
@@ -68,6 +69,7 @@ rule structural_manifold:
     params:
         function="cvsim6.structural_study:sample_manifold",
         n_samples=SCFG["n_manifold"],
+        corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
         f"{LOGS}/structural_manifold.log",
@@ -179,6 +181,7 @@ rule structural_missing_data:
         n_flow_samples=SCFG["missing_flow_samples"],
         top_k=SCFG["missing_top"],
         n_latent=SCFG["missing_latent"],
+        corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
         f"{LOGS}/structural_missing_data.log",

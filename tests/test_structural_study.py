@@ -54,6 +54,32 @@ def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
     assert svd["n_samples"] == 3 and svd["outside_domain"] == 1
 
 
+def test_trajectory_panels_draw_every_set_and_target():
+    """Each of the 4 panels gets one curve per parameter set and a dashed line per observed
+    target, also when handed ``axes.flat`` (an iterator)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cvsim6 import solver
+
+    sim = {"steps_per_cycle": 200, "n_cycles": 6, "window_cycles": 2}
+    v = np.repeat(registry.default_parameters()[None], 3, axis=0)
+    v[1, registry.PARAMETER_INDEX["C_a"]] *= 1.2
+    v[2, registry.PARAMETER_INDEX["C_v"]] = -1.0  # outside the domain: skipped
+    y_star = solver.simulate_batch(v[:1])[0][0]
+    observed = np.ones(16, bool)
+    observed[registry.OUTPUT_INDEX["P_a_dia"]] = False
+    fig, axes = plt.subplots(2, 2)
+    structural_study._trajectory_panels(axes.flat, v, y_star, sim, ["r", "g", "b"], observed=observed)
+    dashed = [sum(ln.get_linestyle() == "--" for ln in ax.lines) for ax in axes.flat]
+    curves = [sum(ln.get_linestyle() == "-" for ln in ax.lines) for ax in axes.flat]
+    assert curves == [2, 2, 2, 2] and dashed == [1, 2, 2, 2]
+    assert [ax.get_ylabel() for ax in axes.flat] == ["P_a (mmHg)", "P_r (mmHg)", "P_pa (mmHg)", "V_l (mL)"]
+    plt.close(fig)
+
+
 def test_structural_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",

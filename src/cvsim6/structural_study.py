@@ -109,6 +109,7 @@ def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samp
 def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulator: dict, colors,
                        observed: np.ndarray | None = None) -> None:
     """P_a, P_r, P_pa, V_l over the last cycle of each parameter set, y* targets as lines."""
+    ax_list = list(ax_list)  # e.g. axes.flat: an iterator that one pass would exhaust
     quantities = (("P_a", 1, "P_a_sys", "P_a_dia"), ("P_r", 3, "P_r_sys", "P_r_dia"),
                   ("P_pa", 4, "P_pa_sys", "P_pa_dia"), ("V_l", 0, "V_l_sys", "V_l_dia"))
     for p, c in zip(params, colors):

@@ -177,6 +177,7 @@ rule emulator_l2_histogram:
         summary=f"{TRAINING}/{{study}}/emulator_l2_errors.json",
     params:
         function="cvsim6.evaluation:emulator_l2_histogram",
+        study=lambda w: w.study,
     log:
         f"{LOGS}/emulator_l2_histogram/{{study}}.log",
     benchmark:

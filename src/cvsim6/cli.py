@@ -22,13 +22,28 @@ from . import __version__
 from .model import ParameterError
 
 
+def _read_csv(path: str) -> pd.DataFrame | None:
+    """The CSV at ``path``, or None after printing why it cannot be read."""
+    try:
+        return pd.read_csv(path)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        print(f"error: cannot read {path}: {exc}", file=sys.stderr)
+        return None
+
+
+def _write_csv(df: pd.DataFrame, path: str, float_format: str) -> Path:
+    """Write ``df`` to ``path`` (parent folders created); returns the path."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    df.to_csv(out, index=False, float_format=float_format)
+    return out
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from .solver import simulate
 
-    try:
-        params = pd.read_csv(args.params)
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        print(f"error: cannot read {args.params}: {exc}", file=sys.stderr)
+    params = _read_csv(args.params)
+    if params is None:
         return 2
     try:
         df = simulate(params, method=args.method, steps_per_cycle=args.steps_per_cycle,
@@ -36,9 +51,7 @@ def _simulate(args: argparse.Namespace) -> int:
     except ParameterError as exc:
         print(f"error: {args.params}: {exc}", file=sys.stderr)
         return 2
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out, index=False, float_format="%.10g")
+    out = _write_csv(df, args.output, "%.10g")
     n_bad = int((df["status"] != "ok").sum())
     msg = f"simulated {len(df)} parameter set(s) -> {out}"
     if n_bad:
@@ -62,10 +75,8 @@ def _invert(args: argparse.Namespace) -> int:
         print(f"error: model file(s) not found: {', '.join(missing)} (train them with the workflow, "
               f"or pass --models and --noise-level)", file=sys.stderr)
         return 2
-    try:
-        obs = pd.read_csv(args.observations)
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        print(f"error: cannot read {args.observations}: {exc}", file=sys.stderr)
+    obs = _read_csv(args.observations)
+    if obs is None:
         return 2
     if "patient" in obs.columns:
         obs = obs.set_index("patient")
@@ -74,17 +85,16 @@ def _invert(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as exc:
         print(f"error: {args.observations}: a value is not a number: {exc}", file=sys.stderr)
         return 2
-    ref = None
+    flow = load_model(files["flow"])
     if args.reference:
         from .datasets import load_split
 
         ref = load_split(args.reference)[1]
     else:  # the flow's own samples stand in for simulated outputs
-        flow = load_model(files["flow"])
         ref = flow.sample_physical(2000)
         ref = ref[np.isfinite(ref).all(axis=1)]
     try:
-        df = invert_observations(obs, load_model(files["flow"]), load_model(files["encoder_decoder"]),
+        df = invert_observations(obs, flow, load_model(files["encoder_decoder"]),
                                  load_model(files["emulator"]), n_latent=args.samples,
                                  n_flow_samples=args.flow_samples, seed=args.seed, reference_outputs=ref,
                                  n_reference=args.reference_size, progress=args.progress,
@@ -92,9 +102,7 @@ def _invert(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {args.observations}: {exc}", file=sys.stderr)
         return 2
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    df.rename(columns={"id": "patient"}).to_csv(out, index=False, float_format="%.8g")
+    out = _write_csv(df.rename(columns={"id": "patient"}), args.output, "%.8g")
     print(f"inverted {df['id'].nunique()} patient(s) x {args.samples} samples -> {out}", file=sys.stderr)
     return 0
 

@@ -75,32 +75,16 @@ def complete_missing(flow, y_obs: np.ndarray, n_samples: int, top_k: int = 1, se
     return best_y, best_lp
 
 
-@torch.no_grad()
 def decode_latent(encdec, y: np.ndarray, n_latent: int, seed: int = 0, corrector_steps: int = 0) -> np.ndarray:
-    """Decode each output row (n, 16) with ``n_latent`` draws w ~ N(0, I).
+    """Decode each output row (n, 16) with ``n_latent`` draws w ~ N(0, I) and
+    ``corrector_steps`` predictor-corrector rounds (see ``EncoderDecoder.invert``).
 
-    ``corrector_steps`` rounds of predictor-corrector sampling (inVAErt, Tong et al. 2024,
-    section 3.3; the paper's code uses 2): the decoded v goes back through NN_v and its mean
-    ``mu(v)`` replaces w before decoding again, pulling draws from the N(0, I) tails into
-    the region the encoder maps data to. Returns parameters (n, n_latent, 23), physical units.
+    Returns parameters of shape (n, n_latent, 23), physical units.
     """
-    if corrector_steps < 0:
-        raise ValueError(f"corrector_steps must be >= 0, got {corrector_steps}")
     y = np.atleast_2d(np.asarray(y, float))
-    gen = _generator(seed)
-    w = torch.randn(len(y) * n_latent, encdec.latent_dim, generator=gen, dtype=torch.float64)
-    dtype = next(encdec.parameters()).dtype
-    device = next(encdec.parameters()).device
-    was_training = encdec.training
-    encdec.eval()
-    y_std = encdec.y_scaler.transform(torch.as_tensor(np.repeat(y, n_latent, axis=0), dtype=dtype, device=device))
-    v_std = encdec.decode(y_std, w.to(dtype=dtype, device=device))
-    for _ in range(int(corrector_steps)):
-        mu, _ = encdec.encode(v_std)
-        v_std = encdec.decode(y_std, mu)
-    encdec.train(was_training)
-    v = encdec.x_scaler.inverse(v_std).double().cpu().numpy()
-    return v.reshape(len(y), n_latent, -1)
+    w = torch.randn(len(y) * n_latent, encdec.latent_dim, generator=_generator(seed), dtype=torch.float64)
+    v = encdec.invert(np.repeat(y, n_latent, axis=0), w.numpy(), corrector_steps=corrector_steps)
+    return np.asarray(v).reshape(len(y), n_latent, -1)
 
 
 def ood_percentile(score: float, reference_scores: np.ndarray) -> float:

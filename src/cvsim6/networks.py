@@ -361,13 +361,25 @@ class EncoderDecoder(nn.Module):
         return self.decode(y_std, w), mu, logvar
 
     @torch.no_grad()
-    def invert(self, y, w):
-        """Physical outputs (N, 16) and latent w (N, latent) -> physical parameters (N, 23)."""
+    def invert(self, y, w, corrector_steps: int = 0):
+        """Physical outputs (N, 16) and latent w (N, latent) -> physical parameters (N, 23).
+
+        ``corrector_steps`` rounds of predictor-corrector sampling (inVAErt, Tong et al. 2024,
+        section 3.3; the paper's code uses 2): the decoded v goes back through NN_v and its
+        mean ``mu(v)`` replaces w before decoding again, pulling draws from the N(0, I) tails
+        into the region the encoder maps data to.
+        """
+        if corrector_steps < 0:
+            raise ValueError(f"corrector_steps must be >= 0, got {corrector_steps}")
         t, was_numpy = _as_model_tensor(self, y)
         wt, _ = _as_model_tensor(self, w)
         was_training = self.training
         self.eval()
-        v = self.x_scaler.inverse(self.decode(self.y_scaler.transform(t), wt))
+        y_std = self.y_scaler.transform(t)
+        v_std = self.decode(y_std, wt)
+        for _ in range(int(corrector_steps)):
+            v_std = self.decode(y_std, self.encode(v_std)[0])
+        v = self.x_scaler.inverse(v_std)
         self.train(was_training)
         return v.double().cpu().numpy() if was_numpy else v
 

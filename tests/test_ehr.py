@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import ehr, registry
+from cvsim6 import downloads, ehr, registry
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
 
@@ -62,7 +62,7 @@ def test_selection_threshold_is_more_than_ten(tmp_path):
 
 @pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
 def test_real_file_selects_46_patients_with_the_paper_counts(tmp_path):
-    assert ehr.sha256_of(REAL) == "5beb040de24c2b6abad0963c002584957a7f422be084ccd7654c5c501b7e48ee"
+    assert downloads.sha256_of(REAL) == "5beb040de24c2b6abad0963c002584957a7f422be084ccd7654c5c501b7e48ee"
     out = ehr.ehr_outputs(REAL)
     sel = ehr.select_patients(out)
     assert len(out) == 84 and len(sel) == 46

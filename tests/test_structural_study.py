@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import evaluation, registry, structural_study
+from cvsim6 import evaluation, paper_values, registry, structural_study
 from test_workflow import copy_workflow, snakemake
 
 
@@ -44,12 +44,14 @@ def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
     samples = tmp_path / "samples.parquet"
     datasets.write_dataset(pd.DataFrame(v, columns=list(registry.PARAMETER_NAMES)), samples)
     csv = tmp_path / "rec.csv"
-    structural_study.manifold_reconstruction(str(samples), str(obs), str(csv), str(tmp_path / "rec.md"),
-                                             str(tmp_path / "rec.png"), sim, n_reconstruct=3, n_traces=3)
-    summary = json.loads(csv.with_suffix(".json").read_text())
+    structural_study.manifold_reconstruction(str(samples), str(obs), csv=str(csv), summary=str(tmp_path / "rec.json"),
+                                             md=str(tmp_path / "rec.md"), figure=str(tmp_path / "rec.png"),
+                                             simulator=sim, n_reconstruct=3, n_traces=3)
+    summary = json.loads((tmp_path / "rec.json").read_text())
     assert summary["outside_domain"] == 1 and summary["flagged"] == 0
     assert summary["max_rel_l2_error"] < 1e-12 and summary["max_rel_error_per_output"] < 1e-12  # rows 0 and 2 are y*'s own parameters
-    structural_study.manifold_svd_figure(str(samples), str(tmp_path / "svd.png"), str(tmp_path / "svd.csv"))
+    structural_study.manifold_svd_figure(str(samples), str(tmp_path / "svd.png"), str(tmp_path / "svd.csv"),
+                                         str(tmp_path / "svd.json"))
     svd = json.loads((tmp_path / "svd.json").read_text())
     assert svd["n_samples"] == 3 and svd["outside_domain"] == 1
 
@@ -90,14 +92,14 @@ def test_structural_stage_end_to_end(tmp_path):
     t = pd.read_csv(work / "results/tables/structural_inversion_errors.csv")
     assert len(t) == 16 and (t["Max (ours)"] >= t["Mean (ours)"]).all() and "Mean (paper)" in t
     obs = pd.read_csv(work / "results/tables/structural_observation.csv")
-    np.testing.assert_allclose(obs["y*"], structural_study.PAPER_Y_STAR)
+    np.testing.assert_allclose(obs["y*"], paper_values.Y_STAR)
     svd = json.loads((work / "results/structural/manifold_svd.json").read_text())
     assert 0 <= svd["modes"] <= 23 and svd["energy"] >= 0.99  # 0: smoke draws that do not vary
     assert svd["n_samples"] + svd["outside_domain"] == 200
     miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
     assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()
     for name in registry.OUTPUT_NAMES:  # observed entries of y* are kept in every completion
-        if name not in structural_study.PAPER_MISSING:
+        if name not in paper_values.MISSING_OUTPUTS:
             assert (miss[name] == obs.set_index("Output").loc[name, "y*"]).all()
     jac = json.loads((work / "results/tables/structural_local_identifiability.json").read_text())
     assert 1 <= jac["median_rank"] <= 16 and jac["local_manifold_dimension"] >= 7

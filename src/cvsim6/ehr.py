@@ -7,15 +7,14 @@ converted to a fraction; SVR and PVR are already in dyn·s/cm^5.
 """
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
-import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from .downloads import download_checked
 from .registry import OUTPUT_NAMES
 
 log = logging.getLogger(__name__)
@@ -45,25 +44,9 @@ class EHRFormatError(ValueError):
     """The EHR file does not have the expected layout; the message says where."""
 
 
-def sha256_of(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def download_ehr(url: str, sha256: str, output: str) -> None:
-    """Download the EHR CSV from its public origin and check its SHA-256."""
-    Path(output).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(output).with_suffix(".part")
-    log.info("downloading %s", url)
-    with urllib.request.urlopen(url, timeout=60) as r, open(tmp, "wb") as fh:  # noqa: S310
-        fh.write(r.read())
-    got = sha256_of(tmp)
-    if got != sha256:
-        raise EHRFormatError(f"{url}: SHA-256 {got} differs from the expected {sha256} (ehr_data.sha256)")
-    tmp.replace(output)
+    """Download the EHR CSV from its public origin and check its SHA-256 (setting ``ehr_data.sha256``)."""
+    download_checked(url, sha256, output, what="ehr_data.sha256")
 
 
 def read_ehr(path: str | Path) -> pd.DataFrame:

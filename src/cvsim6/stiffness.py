@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import model, registry, solver, tables
+from . import model, paper_values, registry, solver, tables
 
 log = logging.getLogger(__name__)
 
@@ -37,11 +37,6 @@ N_CYCLES = solver.DEFAULT_N_CYCLES
 N_LAST = 2
 #: Eigenvalue column names, sorted by |Re| descending.
 LAMBDA_COLUMNS = tuple(f"lambda_{i}" for i in range(1, 7))
-#: The paper's eigenvalues (1/s) at its SR extremes (figures 3, 4) and times (s).
-PAPER_EXTREMES = {
-    "SR max": dict(t=9.444, lambdas=(-520.95, -355.93, -3.75, -0.51, 6.25e-4, 2.91e-5), tau=(0.0019, 0.0028)),
-    "SR min": dict(t=8.618, lambdas=(-4.40, -1.81, -1.77, -0.64, 2.22e-16, 3.47e-18), tau=(None, None)),
-}
 VALVE_NAMES = tuple(registry.VALVES)
 
 
@@ -178,7 +173,7 @@ def extremes(eigenvalues: str, trajectory: str, eigenvectors: str, csv: str, md:
             vec_rows.append({"instant": instant, "t": t, "index": j + 1, "lambda": lam[j].real,
                              "lambda_imag": lam[j].imag,
                              **{f"Q_{c}": abs(Q[i, j]) for i, c in enumerate(registry.COMPARTMENTS)}})
-        paper = PAPER_EXTREMES[instant]
+        paper = paper_values.STIFFNESS_EXTREMES[instant]
         sr = float(stiffness_ratio(lam.real, zero_eigenvalue_tol, sr_tol))
         sr_paper = float(stiffness_ratio(np.array(paper["lambdas"]), zero_eigenvalue_tol, sr_tol))
         open_valves = ", ".join(n for n, k in registry.VALVES.items() if states[k]) or "none"

@@ -18,16 +18,6 @@ from .registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
 
 log = logging.getLogger(__name__)
 
-#: Paper table 4: the observation y* (sampled from NN_f in the paper).
-PAPER_Y_STAR = (72.91, 142.78, 111.55, 22.78, -1.51, 22.37, 13.13, 1.61, 12.56, 7.27, 76.81,
-                153.61, 0.50, 5.60, 1725.48, 74.53)
-#: Paper section 3.3.3: outputs of y* taken as missing.
-PAPER_MISSING = ("P_a_dia", "P_r_dia", "P_pa_dia", "P_w", "V_l_sys", "SVR", "PVR")
-#: The paper's headline numbers of this section.
-PAPER_HEADLINES = {"max_rel_error_manifold": 0.00139, "modes_99": 12, "energy_at_modes": 0.9928,
-                   "max_rel_error_missing": 0.00408}
-
-
 def _simulate(v: np.ndarray, simulator: dict) -> tuple[np.ndarray, np.ndarray]:
     """Decoded parameter sets through the batch simulator; sets outside the model's domain
     (a decoder can extrapolate, e.g. a negative compliance) get status 7, not an error."""
@@ -53,7 +43,7 @@ def _manifold_samples(samples: str) -> tuple[np.ndarray, int]:
     return v[~bad], int(bad.sum())
 
 
-def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, simulator: dict, seed: int,
+def inversion_table(encoder_decoder: str, validation: str, csv: str, summary: str, md: str, simulator: dict, seed: int,
                     corrector_steps: int = 0) -> None:
     """Table 3: decoder on the validation outputs (one w each, ``corrector_steps`` rounds of
     predictor-corrector sampling), pushed through the simulator."""
@@ -70,7 +60,7 @@ def inversion_table(encoder_decoder: str, validation: str, csv: str, md: str, si
                 caption=f"Absolute reconstruction error of the amortized inversion on {ok.sum():,} of "
                         f"{len(y):,} validation outputs (decoded parameters simulated; {_flag_words(st)}); "
                         "paper table 3 beside")
-    Path(csv).with_suffix(".json").write_text(json.dumps({"n": int(len(y)), **_flag_counts(st)}, indent=2) + "\n")
+    Path(summary).write_text(json.dumps({"n": int(len(y)), **_flag_counts(st)}, indent=2) + "\n")
 
 
 def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples: int, seed: int) -> None:
@@ -79,7 +69,7 @@ def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples
     from .tables import write_table
 
     if source == "paper":
-        y = np.array(PAPER_Y_STAR)
+        y = np.array(paper_values.Y_STAR)
     else:
         import torch
 
@@ -87,7 +77,7 @@ def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples
         samples = f.sample_physical(n_flow_samples, generator=torch.Generator().manual_seed(seed))
         lp = f.log_prob_physical(samples)
         y = samples[int(np.nanargmax(lp))]
-    df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "y*": y, "paper y*": PAPER_Y_STAR})
+    df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "y*": y, "paper y*": paper_values.Y_STAR})
     write_table(df, csv, md, caption=f"The observation y* (source: {source})")
 
 
@@ -135,7 +125,7 @@ def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulato
         ax.grid(alpha=0.3)
 
 
-def manifold_reconstruction(samples: str, observation: str, csv: str, md: str, figure: str, simulator: dict,
+def manifold_reconstruction(samples: str, observation: str, csv: str, summary: str, md: str, figure: str, simulator: dict,
                             n_reconstruct: int, n_traces: int) -> None:
     """The first ``n_reconstruct`` manifold samples through the simulator: max relative error
     against y* (paper: ~0.139%) and the four-panel trajectory figure (``n_traces`` traces)."""
@@ -154,15 +144,15 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, md: str, f
     worst = rel.max(axis=0)
     l2 = evaluation.relative_l2_errors(np.broadcast_to(y_star, yhat[ok].shape), yhat[ok])
     df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "max relative error": worst})
-    summary = {"n": int(len(v)), **_flag_counts(st), "max_rel_l2_error": float(l2.max()),
+    info = {"n": int(len(v)), **_flag_counts(st), "max_rel_l2_error": float(l2.max()),
                "median_rel_l2_error": float(np.median(l2)),
-               "paper_max_rel_l2_error": PAPER_HEADLINES["max_rel_error_manifold"],
+               "paper_max_rel_l2_error": paper_values.STRUCTURAL_HEADLINES["max_rel_error_manifold"],
                "max_rel_error_per_output": float(worst.max()), "worst_output": OUTPUT_NAMES[int(np.argmax(worst))]}
     write_table(df, csv, md, caption=f"{int(ok.sum())} of {len(v)} decoded parameter sets for y* simulated "
                                      f"({_flag_words(st)}): largest relative l2 error ||f(v) - y*|| / ||y*|| "
                                      f"{l2.max():.3%} (the paper's measure: about 0.139%); below, the largest "
                                      "relative error of each output")
-    Path(csv).with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
+    Path(summary).write_text(json.dumps(info, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     cmap = plt.get_cmap("viridis")
     _trajectory_panels(axes.flat, v[:n_traces], y_star, simulator,
@@ -209,7 +199,7 @@ def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -
     save_figure(fig, figure)
 
 
-def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99) -> None:
+def manifold_svd_figure(samples: str, figure: str, csv: str, summary: str, level: float = 0.99) -> None:
     """Singular values and cumulative energy of the manifold samples; modes reaching ``level``."""
     import matplotlib.pyplot as plt
 
@@ -220,9 +210,9 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99
     ce = identifiability.cumulative_energy(s)
     n, e = identifiability.modes_for_energy(s, level)
     pd.DataFrame({"mode": np.arange(1, len(s) + 1), "singular_value": s, "cumulative_energy": ce}).to_csv(csv, index=False)
-    Path(csv).with_suffix(".json").write_text(json.dumps(
+    Path(summary).write_text(json.dumps(
         {"n_samples": int(len(v)), "outside_domain": n_out, "level": level, "modes": n, "energy": e,
-         "paper_modes": PAPER_HEADLINES["modes_99"], "paper_energy": PAPER_HEADLINES["energy_at_modes"]},
+         "paper_modes": paper_values.STRUCTURAL_HEADLINES["modes_99"], "paper_energy": paper_values.STRUCTURAL_HEADLINES["energy_at_modes"]},
         indent=2) + "\n")
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     k = np.arange(1, len(s) + 1)
@@ -243,7 +233,7 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, level: float = 0.99
     save_figure(fig, figure)
 
 
-def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md: str, figure: str,
+def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, summary: str, md: str, figure: str,
                  simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int,
                  corrector_steps: int = 0) -> None:
     """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
@@ -273,9 +263,9 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md
                                         f"({n_flow_samples:,} flow samples); the {top_k}x{n_latent} decoded sets "
                                         f"simulated ({_flag_words(st)}): largest relative l2 error over "
                                         f"the observed entries {l2.max():.3%} (paper: about 0.408%)")
-    Path(csv).with_suffix(".json").write_text(json.dumps(
+    Path(summary).write_text(json.dumps(
         {"max_rel_l2_error_observed": float(l2.max()), **_flag_counts(st),
-         "paper": PAPER_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
+         "paper": paper_values.STRUCTURAL_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     colors = plt.get_cmap("tab10").colors
     for g in range(top_k):
@@ -288,7 +278,7 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, md
     save_figure(fig, figure)
 
 
-def jacobian_check(samples: str, csv: str, md: str, figure: str, prior: dict, simulator: dict,
+def jacobian_check(samples: str, csv: str, summary: str, md: str, figure: str, prior: dict, simulator: dict,
                    n_points: int, rel_step: float, rank_rtol: float) -> None:
     """Local identifiability at manifold samples: scaled Jacobian spectra, ranks, and per
     parameter the spread over the manifold (fraction of the prior width) and null-space share."""
@@ -315,7 +305,7 @@ def jacobian_check(samples: str, csv: str, md: str, figure: str, prior: dict, si
                                      f"{rank_counts} (rtol {rank_rtol:g}), so a local manifold dimension of "
                                      f"{23 - int(np.median(ranks))}; the SVD of the manifold samples needs "
                                      "its own count of modes (see manifold_svd.json)")
-    Path(csv).with_suffix(".json").write_text(json.dumps(
+    Path(summary).write_text(json.dumps(
         {"points": int(ok.sum()), "rank_counts": rank_counts, "median_rank": float(np.median(ranks)),
          "local_manifold_dimension": 23 - int(np.median(ranks))}, indent=2) + "\n")
     fig, ax = plt.subplots(figsize=(7, 4))

@@ -1,28 +1,29 @@
 # Structural identifiability study (paper section 3.3 and appendix C), from the
 # networks trained on the structural data (noise-free, delta = 0).
 
-STRUCT = f"{RESULTS}/structural"
+STRUCT = f"{NET}/structural"
 SCFG = config["structural_study"]
-S_MODELS = f"{RESULTS}/models/structural"
+S_MODELS = f"{MODELS}/structural"
 
 
 rule structural_inversion_table:
     input:
-        code=package_code("structural_study", "evaluation", "paper_values"),
+        code=code_for("cvsim6.structural_study:inversion_table"),
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         validation=f"{DATA}/structural/validation.parquet",
     output:
-        csv=f"{TABLES}/structural_inversion_errors.csv",
-        md=f"{TABLES}/structural_inversion_errors.md",
+        csv=f"{NET_TABLES}/structural_inversion_errors.csv",
+        summary=f"{NET_TABLES}/structural_inversion_errors.json",
+        md=f"{NET_TABLES}/structural_inversion_errors.md",
     params:
         function="cvsim6.structural_study:inversion_table",
         simulator=config["simulator"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
-        f"{LOGS}/structural_inversion_table.log",
+        f"{NET_LOGS}/structural_inversion_table.log",
     benchmark:
-        f"{BENCHMARKS}/structural_inversion_table.tsv"
+        f"{NET_BENCHMARKS}/structural_inversion_table.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -35,20 +36,20 @@ rule structural_inversion_table:
 
 rule structural_observation:
     input:
-        code=package_code("structural_study"),
+        code=code_for("cvsim6.structural_study:choose_observation"),
         flow=f"{S_MODELS}/flow_delta0.pt",
     output:
-        csv=f"{TABLES}/structural_observation.csv",
-        md=f"{TABLES}/structural_observation.md",
+        csv=f"{NET_TABLES}/structural_observation.csv",
+        md=f"{NET_TABLES}/structural_observation.md",
     params:
         function="cvsim6.structural_study:choose_observation",
         source=SCFG["observation"],
         n_flow_samples=SCFG["observation_flow_samples"],
         seed=config["seed"],
     log:
-        f"{LOGS}/structural_observation.log",
+        f"{NET_LOGS}/structural_observation.log",
     benchmark:
-        f"{BENCHMARKS}/structural_observation.tsv"
+        f"{NET_BENCHMARKS}/structural_observation.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -61,7 +62,7 @@ rule structural_observation:
 
 rule structural_manifold:
     input:
-        code=package_code("structural_study", "inversion"),
+        code=code_for("cvsim6.structural_study:sample_manifold"),
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         observation=rules.structural_observation.output.csv,
     output:
@@ -72,9 +73,9 @@ rule structural_manifold:
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
-        f"{LOGS}/structural_manifold.log",
+        f"{NET_LOGS}/structural_manifold.log",
     benchmark:
-        f"{BENCHMARKS}/structural_manifold.tsv"
+        f"{NET_BENCHMARKS}/structural_manifold.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -87,12 +88,13 @@ rule structural_manifold:
 
 rule structural_reconstruction:
     input:
-        code=package_code("structural_study", "solver", "_kernel"),
+        code=code_for("cvsim6.structural_study:manifold_reconstruction"),
         samples=rules.structural_manifold.output.samples,
         observation=rules.structural_observation.output.csv,
     output:
-        csv=f"{TABLES}/structural_manifold_reconstruction.csv",
-        md=f"{TABLES}/structural_manifold_reconstruction.md",
+        csv=f"{NET_TABLES}/structural_manifold_reconstruction.csv",
+        summary=f"{NET_TABLES}/structural_manifold_reconstruction.json",
+        md=f"{NET_TABLES}/structural_manifold_reconstruction.md",
         figure=report(f"{STRUCT}/manifold_trajectories.png", category="Structural study",
                       caption="../report/structural_trajectories.rst"),
     params:
@@ -101,9 +103,9 @@ rule structural_reconstruction:
         n_reconstruct=SCFG["n_reconstruct"],
         n_traces=SCFG["n_traces"],
     log:
-        f"{LOGS}/structural_reconstruction.log",
+        f"{NET_LOGS}/structural_reconstruction.log",
     benchmark:
-        f"{BENCHMARKS}/structural_reconstruction.tsv"
+        f"{NET_BENCHMARKS}/structural_reconstruction.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -116,7 +118,7 @@ rule structural_reconstruction:
 
 rule structural_parallel_coordinates:
     input:
-        code=package_code("structural_study"),
+        code=code_for("cvsim6.structural_study:parallel_coordinates"),
         samples=rules.structural_manifold.output.samples,
     output:
         figure=report(f"{STRUCT}/manifold_parallel_coordinates.png", category="Structural study",
@@ -126,9 +128,9 @@ rule structural_parallel_coordinates:
         prior=config["data"]["studies"]["structural"]["prior"],
         n_lines=SCFG["n_reconstruct"],
     log:
-        f"{LOGS}/structural_parallel_coordinates.log",
+        f"{NET_LOGS}/structural_parallel_coordinates.log",
     benchmark:
-        f"{BENCHMARKS}/structural_parallel_coordinates.tsv"
+        f"{NET_BENCHMARKS}/structural_parallel_coordinates.tsv"
     threads: 1
     resources:
         mem_mb=1000,
@@ -141,18 +143,19 @@ rule structural_parallel_coordinates:
 
 rule structural_manifold_svd:
     input:
-        code=package_code("structural_study", "identifiability"),
+        code=code_for("cvsim6.structural_study:manifold_svd_figure"),
         samples=rules.structural_manifold.output.samples,
     output:
         csv=f"{STRUCT}/manifold_svd.csv",
+        summary=f"{STRUCT}/manifold_svd.json",
         figure=report(f"{STRUCT}/manifold_svd.png", category="Structural study",
                       caption="../report/structural_svd.rst"),
     params:
         function="cvsim6.structural_study:manifold_svd_figure",
     log:
-        f"{LOGS}/structural_manifold_svd.log",
+        f"{NET_LOGS}/structural_manifold_svd.log",
     benchmark:
-        f"{BENCHMARKS}/structural_manifold_svd.tsv"
+        f"{NET_BENCHMARKS}/structural_manifold_svd.tsv"
     threads: 1
     resources:
         mem_mb=1000,
@@ -165,13 +168,14 @@ rule structural_manifold_svd:
 
 rule structural_missing_data:
     input:
-        code=package_code("structural_study", "inversion"),
+        code=code_for("cvsim6.structural_study:missing_data"),
         flow=f"{S_MODELS}/flow_delta0.pt",
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         observation=rules.structural_observation.output.csv,
     output:
-        csv=f"{TABLES}/structural_missing_data.csv",
-        md=f"{TABLES}/structural_missing_data.md",
+        csv=f"{NET_TABLES}/structural_missing_data.csv",
+        summary=f"{NET_TABLES}/structural_missing_data.json",
+        md=f"{NET_TABLES}/structural_missing_data.md",
         figure=report(f"{STRUCT}/missing_data_trajectories.png", category="Structural study",
                       caption="../report/structural_missing.rst"),
     params:
@@ -184,9 +188,9 @@ rule structural_missing_data:
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
     log:
-        f"{LOGS}/structural_missing_data.log",
+        f"{NET_LOGS}/structural_missing_data.log",
     benchmark:
-        f"{BENCHMARKS}/structural_missing_data.tsv"
+        f"{NET_BENCHMARKS}/structural_missing_data.tsv"
     threads: 1
     resources:
         mem_mb=4000,
@@ -199,11 +203,12 @@ rule structural_missing_data:
 
 rule structural_jacobian:
     input:
-        code=package_code("structural_study", "identifiability", "solver", "_kernel"),
+        code=code_for("cvsim6.structural_study:jacobian_check"),
         samples=rules.structural_manifold.output.samples,
     output:
-        csv=f"{TABLES}/structural_local_identifiability.csv",
-        md=f"{TABLES}/structural_local_identifiability.md",
+        csv=f"{NET_TABLES}/structural_local_identifiability.csv",
+        summary=f"{NET_TABLES}/structural_local_identifiability.json",
+        md=f"{NET_TABLES}/structural_local_identifiability.md",
         figure=report(f"{STRUCT}/jacobian_spectra.png", category="Structural study",
                       caption="../report/structural_jacobian.rst"),
     params:
@@ -214,9 +219,9 @@ rule structural_jacobian:
         rel_step=SCFG["jacobian_rel_step"],
         rank_rtol=SCFG["rank_rtol"],
     log:
-        f"{LOGS}/structural_jacobian.log",
+        f"{NET_LOGS}/structural_jacobian.log",
     benchmark:
-        f"{BENCHMARKS}/structural_jacobian.tsv"
+        f"{NET_BENCHMARKS}/structural_jacobian.tsv"
     threads: 1
     resources:
         mem_mb=2000,

@@ -31,6 +31,8 @@ include: "workflow/rules/data.smk"
 include: "workflow/rules/ehr.smk"
 include: "workflow/rules/training.smk"
 include: "workflow/rules/structural.smk"
+include: "workflow/rules/published.smk"
+include: "workflow/rules/scorecard.smk"
 
 
 localrules:
@@ -51,7 +53,7 @@ rule all:
         expand(rules.gather_study.output, study=STUDIES),
         expand(rules.data_histograms.output, study=STUDIES),
         rules.ehr_patients.output,
-        [training_targets(study) for study in STUDIES],
+        [network_targets(study) for study in STUDIES],
         rules.ehr_error_table.output,
         rules.structural_inversion_table.output,
         rules.structural_reconstruction.output,
@@ -61,3 +63,4 @@ rule all:
         rules.structural_jacobian.output,
         expand(rules.ehr_ood_table.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
         expand(rules.ehr_patient_figure.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
+        rules.reproduction_scorecard.output,

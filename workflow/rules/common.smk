@@ -1,9 +1,12 @@
 # Helpers shared by the workflow: output locations and the package code
 # each step depends on. Only constants and functions here, no rules.
 
+import importlib.util
+
+
 #: Everything the workflow produces (git-ignored except results/README.md).
 RESULTS = "results"
-#: Tables of the paper (CSV + Markdown).
+#: Tables of the paper that do not depend on the networks (CSV + Markdown).
 TABLES = f"{RESULTS}/tables"
 #: Per-rule log files.
 LOGS = "logs"
@@ -12,16 +15,32 @@ BENCHMARKS = "benchmarks"
 #: The installed package whose functions the rules call.
 PACKAGE_DIR = "src/cvsim6"
 
+#: Where the inVAErt networks come from: 'trained' by this workflow or 'published' (the paper's).
+NETWORK_SOURCE = config["networks"]["source"]
+#: Root of the results that depend on the networks, per source; the two never overwrite each other.
+NETWORK_RESULTS = {"trained": RESULTS, "published": f"{RESULTS}/published"}
+#: This run's root of network-dependent results, and its tables, logs and benchmarks.
+NET = NETWORK_RESULTS[NETWORK_SOURCE]
+NET_TABLES = f"{NET}/tables"
+NET_LOGS = LOGS if NETWORK_SOURCE == "trained" else f"{LOGS}/published"
+NET_BENCHMARKS = BENCHMARKS if NETWORK_SOURCE == "trained" else f"{BENCHMARKS}/published"
+#: Networks the downstream rules read: trained into results/models, converted into results/published/models.
+MODELS = f"{NET}/models"
 
-def package_code(*modules):
-    """Source files of the given cvsim6 modules, e.g. ``package_code("tables")``.
+_spec = importlib.util.spec_from_file_location("cvsim6_codegraph", f"{PACKAGE_DIR}/codegraph.py")
+_codegraph = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_codegraph)
 
-    Rules declare them as the input named ``code`` so that a change of the code
-    that produces an output marks that output for rerun (Snakemake's default
-    rerun triggers include input modification times). call.py does not pass
-    ``code`` to the function.
+
+def code_for(function):
+    """Source files behind ``"cvsim6.module:function"``: its module and every package
+    module that module imports, transitively (cvsim6.codegraph).
+
+    Rules declare them as the input named ``code``, so that a change of the code that
+    produces an output reruns the rule (Snakemake compares checksums of small inputs);
+    call.py does not pass ``code`` to the function.
     """
-    return [f"{PACKAGE_DIR}/{module}.py" for module in modules]
+    return _codegraph.module_closure(function.split(":")[0], PACKAGE_DIR)
 
 
 def ehr_csv(wildcards=None):
@@ -34,14 +53,32 @@ def noise_tag(delta):
     return f"{float(delta):g}"
 
 
-def training_targets(study):
-    """Every trained model, loss curve and table of ``study`` for the config in use."""
-    deltas = [noise_tag(d) for d in config["training"]["studies"][study]["noise_levels"]]
-    return (
-        [f"{MODELS}/{study}/emulator.pt", f"{TRAINING}/{study}/emulator_losses.png",
-         f"{TABLES}/{study}_emulator_validation.md", f"{TABLES}/{study}_architectures.md",
-         f"{TABLES}/{study}_schedules.md", f"{TRAINING}/{study}/emulator_l2_errors.png"]
-        + [f"{TRAINING}/{study}/flow_delta{d}_marginals.png" for d in deltas]
-        + [f"{MODELS}/{study}/{stage}_delta{d}.pt" for d in deltas for stage in ("flow", "encoder_decoder")]
-        + [f"{TRAINING}/{study}/{stage}_delta{d}_losses.png" for d in deltas for stage in ("flow", "encoder_decoder")]
+def noise_tags(study):
+    """File-name tags of ``study``'s training-noise levels in the config in use."""
+    return [noise_tag(d) for d in config["training"]["studies"][study]["noise_levels"]]
+
+
+def model_files(study, root=MODELS):
+    """The networks of ``study`` under ``root``: emulator, then per noise level flow and encoder/decoder."""
+    deltas = noise_tags(study)
+    return dict(
+        emulator=f"{root}/{study}/emulator.pt",
+        flows=[f"{root}/{study}/flow_delta{d}.pt" for d in deltas],
+        encoder_decoders=[f"{root}/{study}/encoder_decoder_delta{d}.pt" for d in deltas],
     )
+
+
+def network_targets(study):
+    """Every network-dependent file of ``study`` for the config in use: the evaluation of
+    the networks and, when the workflow trains them, the training tables and loss curves."""
+    deltas = noise_tags(study)
+    files = model_files(study)
+    targets = [files["emulator"], *files["flows"], *files["encoder_decoders"],
+               f"{NET_TABLES}/{study}_emulator_validation.md", f"{NET}/training/{study}/emulator_l2_errors.png"]
+    targets += [f"{NET}/training/{study}/flow_delta{d}_marginals.png" for d in deltas]
+    if NETWORK_SOURCE == "trained":
+        targets += [f"{TABLES}/{study}_architectures.md", f"{TABLES}/{study}_schedules.md",
+                    f"{RESULTS}/training/{study}/emulator_losses.png"]
+        targets += [f"{RESULTS}/training/{study}/{stage}_delta{d}_losses.png"
+                    for d in deltas for stage in ("flow", "encoder_decoder")]
+    return targets

@@ -11,7 +11,7 @@ wildcard_constraints:
 
 rule sample_prior:
     input:
-        code=package_code("datasets", "priors", "registry"),
+        code=code_for("cvsim6.datasets:sample_prior"),
     output:
         parameters=f"{DATA}/{{study}}/parameters.parquet",
         shards=scatter.simulate("results/data/{{study}}/shards/parameters_{scatteritem}.parquet"),
@@ -37,7 +37,7 @@ rule sample_prior:
 
 rule simulate_shard:
     input:
-        code=package_code("datasets", "solver", "_kernel", "model"),
+        code=code_for("cvsim6.datasets:simulate_shard"),
         parameters=f"{DATA}/{{study}}/shards/parameters_{{scatteritem}}.parquet",
     output:
         output=f"{DATA}/{{study}}/shards/simulated_{{scatteritem}}.parquet",
@@ -61,7 +61,7 @@ rule simulate_shard:
 
 rule gather_study:
     input:
-        code=package_code("datasets"),
+        code=code_for("cvsim6.datasets:gather_study"),
         shards=gather.simulate("results/data/{{study}}/shards/simulated_{scatteritem}.parquet"),
     output:
         train=f"{DATA}/{{study}}/train.parquet",
@@ -93,7 +93,7 @@ rule gather_study:
 
 rule data_histograms:
     input:
-        code=package_code("datasets", "plots"),
+        code=code_for("cvsim6.datasets:plot_histograms"),
         train=rules.gather_study.output.train,
         test=rules.gather_study.output.test,
         validation=rules.gather_study.output.validation,

@@ -1,7 +1,10 @@
 # The EHR dataset (section 3.4): its file (a configured local path, or downloaded
 # from its public origin into resources/), and the patients selected for inversion.
 
+#: The patient selection (independent of the networks).
 EHR = f"{RESULTS}/ehr"
+#: Inversions, tables and figures made with the networks in use.
+NET_EHR = f"{NET}/ehr"
 
 
 rule download_ehr:
@@ -27,7 +30,7 @@ rule download_ehr:
 
 rule ehr_patients:
     input:
-        code=package_code("ehr", "tables"),
+        code=code_for("cvsim6.ehr:write_patient_selection"),
         csv=ehr_csv,
     output:
         patients=f"{EHR}/patients.csv",
@@ -51,14 +54,14 @@ rule ehr_patients:
 
 rule invert_ehr_patients:
     input:
-        code=package_code("ehr_study", "inversion", "networks"),
+        code=code_for("cvsim6.ehr_study:invert_ehr_patients"),
         patients=rules.ehr_patients.output.patients,
-        flow=f"{RESULTS}/models/ehr/flow_delta{{delta}}.pt",
-        encoder_decoder=f"{RESULTS}/models/ehr/encoder_decoder_delta{{delta}}.pt",
-        emulator=f"{RESULTS}/models/ehr/emulator.pt",
+        flow=f"{MODELS}/ehr/flow_delta{{delta}}.pt",
+        encoder_decoder=f"{MODELS}/ehr/encoder_decoder_delta{{delta}}.pt",
+        emulator=f"{MODELS}/ehr/emulator.pt",
         reference=f"{DATA}/ehr/validation.parquet",
     output:
-        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+        predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     params:
         function="cvsim6.ehr_study:invert_ehr_patients",
         noise_level=lambda w: float(w.delta),
@@ -69,9 +72,9 @@ rule invert_ehr_patients:
         corrector_steps=config["ehr_study"]["corrector_steps"],
         seed=config["seed"],
     log:
-        f"{LOGS}/invert_ehr_patients/delta{{delta}}.log",
+        f"{NET_LOGS}/invert_ehr_patients/delta{{delta}}.log",
     benchmark:
-        f"{BENCHMARKS}/invert_ehr_patients/delta{{delta}}.tsv"
+        f"{NET_BENCHMARKS}/invert_ehr_patients/delta{{delta}}.tsv"
     threads: 1
     resources:
         mem_mb=4000,
@@ -84,21 +87,21 @@ rule invert_ehr_patients:
 
 rule ehr_error_table:
     input:
-        code=package_code("ehr_study", "tables"),
+        code=code_for("cvsim6.ehr_study:ehr_error_table"),
         patients=rules.ehr_patients.output.patients,
         predictions=expand(
-            f"{EHR}/predictions_delta{{delta}}.parquet",
-            delta=[noise_tag(d) for d in config["training"]["studies"]["ehr"]["noise_levels"]],
+            f"{NET_EHR}/predictions_delta{{delta}}.parquet",
+            delta=noise_tags("ehr"),
         ),
     output:
-        csv=f"{TABLES}/ehr_error_per_output.csv",
-        md=f"{TABLES}/ehr_error_per_output.md",
+        csv=f"{NET_TABLES}/ehr_error_per_output.csv",
+        md=f"{NET_TABLES}/ehr_error_per_output.md",
     params:
         function="cvsim6.ehr_study:ehr_error_table",
     log:
-        f"{LOGS}/ehr_error_table.log",
+        f"{NET_LOGS}/ehr_error_table.log",
     benchmark:
-        f"{BENCHMARKS}/ehr_error_table.tsv"
+        f"{NET_BENCHMARKS}/ehr_error_table.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -111,17 +114,17 @@ rule ehr_error_table:
 
 rule ehr_ood_table:
     input:
-        code=package_code("ehr_study", "tables"),
-        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+        code=code_for("cvsim6.ehr_study:ood_table"),
+        predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
-        csv=f"{TABLES}/ehr_ood_delta{{delta}}.csv",
-        md=f"{TABLES}/ehr_ood_delta{{delta}}.md",
+        csv=f"{NET_TABLES}/ehr_ood_delta{{delta}}.csv",
+        md=f"{NET_TABLES}/ehr_ood_delta{{delta}}.md",
     params:
         function="cvsim6.ehr_study:ood_table",
     log:
-        f"{LOGS}/ehr_ood_table/delta{{delta}}.log",
+        f"{NET_LOGS}/ehr_ood_table/delta{{delta}}.log",
     benchmark:
-        f"{BENCHMARKS}/ehr_ood_table/delta{{delta}}.tsv"
+        f"{NET_BENCHMARKS}/ehr_ood_table/delta{{delta}}.tsv"
     threads: 1
     resources:
         mem_mb=1000,
@@ -134,21 +137,21 @@ rule ehr_ood_table:
 
 rule ehr_patient_figure:
     input:
-        code=package_code("ehr_study", "plots"),
+        code=code_for("cvsim6.ehr_study:ehr_patient_figure"),
         patients=rules.ehr_patients.output.patients,
-        predictions=f"{EHR}/predictions_delta{{delta}}.parquet",
+        predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
         figure=report(
-            f"{EHR}/patient_predictions_delta{{delta}}.png",
+            f"{NET_EHR}/patient_predictions_delta{{delta}}.png",
             category="EHR study",
             caption="../report/ehr_patient_figure.rst",
         ),
     params:
         function="cvsim6.ehr_study:ehr_patient_figure",
     log:
-        f"{LOGS}/ehr_patient_figure/delta{{delta}}.log",
+        f"{NET_LOGS}/ehr_patient_figure/delta{{delta}}.log",
     benchmark:
-        f"{BENCHMARKS}/ehr_patient_figure/delta{{delta}}.tsv"
+        f"{NET_BENCHMARKS}/ehr_patient_figure/delta{{delta}}.tsv"
     threads: 1
     resources:
         mem_mb=2000,

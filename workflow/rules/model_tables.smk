@@ -3,7 +3,7 @@
 
 rule input_parameter_table:
     input:
-        code=package_code("registry", "tables"),
+        code=code_for("cvsim6.tables:write_input_table"),
     output:
         csv=f"{TABLES}/input_parameters.csv",
         md=report(f"{TABLES}/input_parameters.md", category="Model", caption="../report/input_parameters.rst"),
@@ -25,7 +25,7 @@ rule input_parameter_table:
 
 rule output_parameter_table:
     input:
-        code=package_code("registry", "tables"),
+        code=code_for("cvsim6.tables:write_output_table"),
     output:
         csv=f"{TABLES}/output_parameters.csv",
         md=report(f"{TABLES}/output_parameters.md", category="Model", caption="../report/output_parameters.rst"),

@@ -7,7 +7,7 @@ STIFFNESS = f"{RESULTS}/stiffness"
 
 rule stiffness_eigen:
     input:
-        code=package_code("model", "solver", "stiffness"),
+        code=code_for("cvsim6.stiffness:eigen_analysis"),
     output:
         eigenvalues=f"{STIFFNESS}/eigenvalues.csv",
         trajectory=f"{STIFFNESS}/trajectory.csv",
@@ -33,7 +33,7 @@ rule stiffness_eigen:
 
 rule stiffness_extremes:
     input:
-        code=package_code("model", "stiffness", "tables"),
+        code=code_for("cvsim6.stiffness:extremes"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
         trajectory=rules.stiffness_eigen.output.trajectory,
     output:
@@ -60,7 +60,7 @@ rule stiffness_extremes:
 
 rule stiffness_eigenvalue_figure:
     input:
-        code=package_code("stiffness_plots"),
+        code=code_for("cvsim6.stiffness_plots:eigenvalue_figure"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
     output:
         png=report(f"{STIFFNESS}/eigenvalues.png", category="Stiffness", caption="../report/stiffness_eigenvalues.rst"),
@@ -84,7 +84,7 @@ rule stiffness_eigenvalue_figure:
 
 rule stiffness_radar_figure:
     input:
-        code=package_code("stiffness_plots"),
+        code=code_for("cvsim6.stiffness_plots:radar_figure"),
         eigenvectors=rules.stiffness_extremes.output.eigenvectors,
     output:
         png=report(
@@ -112,7 +112,7 @@ rule stiffness_radar_figure:
 
 rule stiffness_sr_figure:
     input:
-        code=package_code("stiffness_plots"),
+        code=code_for("cvsim6.stiffness_plots:sr_dynamics_figure"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
         trajectory=rules.stiffness_eigen.output.trajectory,
     output:
@@ -136,7 +136,7 @@ rule stiffness_sr_figure:
 
 rule stiffness_rk4:
     input:
-        code=package_code("model", "solver", "stiffness", "tables"),
+        code=code_for("cvsim6.stiffness:rk4_study"),
     output:
         series=f"{STIFFNESS}/rk4_series.csv",
         csv=f"{STIFFNESS}/rk4_errors.csv",
@@ -162,7 +162,7 @@ rule stiffness_rk4:
 
 rule stiffness_rk4_figure:
     input:
-        code=package_code("stiffness_plots"),
+        code=code_for("cvsim6.stiffness_plots:rk4_figure"),
         series=rules.stiffness_rk4.output.series,
     output:
         png=report(f"{STIFFNESS}/rk4.png", category="Stiffness", caption="../report/stiffness_rk4.rst"),

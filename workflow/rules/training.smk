@@ -2,8 +2,11 @@
 # emulator and the flows first (side by side), then the encoder/decoder through the
 # frozen emulator; one flow and one encoder/decoder per training-noise level delta.
 
-MODELS = f"{RESULTS}/models"
+#: Where the training rules write the networks and their loss curves (whatever the source in use).
+TRAINED_MODELS = f"{RESULTS}/models"
 TRAINING = f"{RESULTS}/training"
+#: Evaluation of the networks in use (trained or published).
+NET_TRAINING = f"{NET}/training"
 
 
 wildcard_constraints:
@@ -12,7 +15,7 @@ wildcard_constraints:
 
 rule network_tables:
     input:
-        code=package_code("tables", "networks", "paper_values"),
+        code=code_for("cvsim6.tables:write_network_tables"),
     output:
         architecture_csv=f"{TABLES}/{{study}}_architectures.csv",
         architecture_md=f"{TABLES}/{{study}}_architectures.md",
@@ -38,11 +41,11 @@ rule network_tables:
 
 rule train_emulator:
     input:
-        code=package_code("training", "networks"),
+        code=code_for("cvsim6.training:train_emulator"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
     output:
-        model=f"{MODELS}/{{study}}/emulator.pt",
+        model=f"{TRAINED_MODELS}/{{study}}/emulator.pt",
         losses=f"{TRAINING}/{{study}}/emulator_losses.csv",
         figure=report(
             f"{TRAINING}/{{study}}/emulator_losses.png",
@@ -72,11 +75,11 @@ rule train_emulator:
 
 rule train_flow:
     input:
-        code=package_code("training", "networks"),
+        code=code_for("cvsim6.training:train_flow"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
     output:
-        model=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
+        model=f"{TRAINED_MODELS}/{{study}}/flow_delta{{delta}}.pt",
         losses=f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.csv",
         figure=report(
             f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.png",
@@ -107,12 +110,12 @@ rule train_flow:
 
 rule train_encoder_decoder:
     input:
-        code=package_code("training", "networks"),
+        code=code_for("cvsim6.training:train_encoder_decoder"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
         emulator=rules.train_emulator.output.model,
     output:
-        model=f"{MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt",
+        model=f"{TRAINED_MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt",
         losses=f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.csv",
         figure=report(
             f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.png",
@@ -143,19 +146,19 @@ rule train_encoder_decoder:
 
 rule emulator_validation:
     input:
-        code=package_code("evaluation", "paper_values"),
-        model=rules.train_emulator.output.model,
+        code=code_for("cvsim6.evaluation:emulator_validation"),
+        model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
-        csv=f"{TABLES}/{{study}}_emulator_validation.csv",
-        md=f"{TABLES}/{{study}}_emulator_validation.md",
+        csv=f"{NET_TABLES}/{{study}}_emulator_validation.csv",
+        md=f"{NET_TABLES}/{{study}}_emulator_validation.md",
     params:
         function="cvsim6.evaluation:emulator_validation",
         study=lambda w: w.study,
     log:
-        f"{LOGS}/emulator_validation/{{study}}.log",
+        f"{NET_LOGS}/emulator_validation/{{study}}.log",
     benchmark:
-        f"{BENCHMARKS}/emulator_validation/{{study}}.tsv"
+        f"{NET_BENCHMARKS}/emulator_validation/{{study}}.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -168,20 +171,20 @@ rule emulator_validation:
 
 rule emulator_l2_histogram:
     input:
-        code=package_code("evaluation", "paper_values"),
-        model=rules.train_emulator.output.model,
+        code=code_for("cvsim6.evaluation:emulator_l2_histogram"),
+        model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
-        figure=report(f"{TRAINING}/{{study}}/emulator_l2_errors.png", category="Training",
+        figure=report(f"{NET_TRAINING}/{{study}}/emulator_l2_errors.png", category="Training",
                       subcategory="{study}", caption="../report/emulator_l2.rst"),
-        summary=f"{TRAINING}/{{study}}/emulator_l2_errors.json",
+        summary=f"{NET_TRAINING}/{{study}}/emulator_l2_errors.json",
     params:
         function="cvsim6.evaluation:emulator_l2_histogram",
         study=lambda w: w.study,
     log:
-        f"{LOGS}/emulator_l2_histogram/{{study}}.log",
+        f"{NET_LOGS}/emulator_l2_histogram/{{study}}.log",
     benchmark:
-        f"{BENCHMARKS}/emulator_l2_histogram/{{study}}.tsv"
+        f"{NET_BENCHMARKS}/emulator_l2_histogram/{{study}}.tsv"
     threads: 1
     resources:
         mem_mb=2000,
@@ -194,20 +197,20 @@ rule emulator_l2_histogram:
 
 rule flow_marginals:
     input:
-        code=package_code("evaluation"),
+        code=code_for("cvsim6.evaluation:flow_marginals"),
         flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
-        figure=report(f"{TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png", category="Training",
+        figure=report(f"{NET_TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png", category="Training",
                       subcategory="{study}", caption="../report/flow_marginals.rst"),
     params:
         function="cvsim6.evaluation:flow_marginals",
         n_samples=20000,
         seed=config["seed"],
     log:
-        f"{LOGS}/flow_marginals/{{study}}_delta{{delta}}.log",
+        f"{NET_LOGS}/flow_marginals/{{study}}_delta{{delta}}.log",
     benchmark:
-        f"{BENCHMARKS}/flow_marginals/{{study}}_delta{{delta}}.tsv"
+        f"{NET_BENCHMARKS}/flow_marginals/{{study}}_delta{{delta}}.tsv"
     threads: 1
     resources:
         mem_mb=2000,

@@ -184,3 +184,78 @@ def test_valve_at_equilibrium_is_not_a_failure(tmp_path):
     assert st[0] == 0
     ref, rs = solver.simulate_reference(P)
     assert rs[0] == 0 and within(out, ref).all()
+
+
+def test_unphysical_rows_are_simulated_and_flagged(default_params):
+    """Parameters the equations accept but no circulation has (negative unstressed volume, a
+    ventricle no stiffer in systole) get status 8 and keep their outputs; the others are untouched."""
+    P = np.repeat(default_params[None], 4, axis=0)
+    P[1, I["V0_v"]] = -100.0
+    P[2, I["C_l_sys"]] = 20.0  # above C_l_dia = 10
+    P[3, I["V0_l"]] = 0.0  # zero is a volume, not an unphysical one
+    assert list(solver.unphysical(P)) == [False, True, True, False]
+    out, st = solver.simulate_batch(P)
+    assert list(st) == [0, 8, 8, 0]
+    assert np.isfinite(out).all()
+    alone, _ = solver.simulate_batch(P[[0, 3]])
+    assert np.array_equal(out[[0, 3]], alone)
+    # 2600 mL more stressed volume: a fuller, higher-pressure circulation; a weak left ventricle: low LVEF
+    assert out[1, NAMES.index("P_a_sys")] > out[0, NAMES.index("P_a_sys")] + 100
+    assert out[2, NAMES.index("LVEF")] < 0.2
+    df = solver.simulate(P[:2])
+    assert list(df["status"]) == ["ok", STATUS_REASONS[8]]
+
+
+def test_reference_path_flags_unphysical_rows(default_params):
+    P = np.repeat(default_params[None], 2, axis=0)
+    P[1, I["V0_pa"]] = -5.0
+    out, st = solver.simulate_reference(P, n_cycles=3, window_cycles=1, rtol=1e-6, atol=1e-6)
+    assert list(st) == [0, 8] and np.isfinite(out).all()
+
+
+def test_reference_failures_are_numerical_only(default_params, monkeypatch):
+    """A numerical failure flags its row (status 6); a programming error propagates."""
+    P = np.repeat(default_params[None], 2, axis=0)
+
+    def fails(p, **kw):
+        raise solver.IntegrationError("Radau failed at t = 0.1 s: step size too small")
+
+    monkeypatch.setattr(solver, "reference_solution", fails)
+    out, st = solver.simulate_reference(P)
+    assert list(st) == [6, 6] and np.isnan(out).all()
+    monkeypatch.setattr(solver, "reference_solution",
+                        lambda p, **kw: (_ for _ in ()).throw(np.linalg.LinAlgError("singular matrix")))
+    assert list(solver.simulate_reference(P)[1]) == [6, 6]
+
+    def bug(p, **kw):
+        raise TypeError("unsupported operand type(s)")
+
+    monkeypatch.setattr(solver, "reference_solution", bug)
+    with pytest.raises(TypeError, match="unsupported operand"):
+        solver.simulate_reference(P)
+
+
+def test_batch_kernel_bug_propagates(default_params, monkeypatch):
+    def bug(*args):
+        raise TypeError("kernel called with the wrong arguments")
+
+    monkeypatch.setattr(solver._kernel, "batch", bug)
+    with pytest.raises(TypeError, match="wrong arguments"):
+        solver.simulate_batch(default_params)
+
+
+def test_simulate_names_text_and_blank_cells(default_params):
+    df = pd.DataFrame([default_params] * 3, columns=registry.PARAMETER_NAMES).astype(object)
+    assert solver.first_invalid_row(df) is None
+    df.loc[2, "R_pv"] = None
+    df.loc[1, "C_a"] = "abc"
+    assert solver.first_invalid_row(df) == (1, "C_a", "'abc' is not a number")
+    with pytest.raises(model.ParameterError, match=r"^row 1: parameter C_a: 'abc' is not a number$"):
+        solver.simulate(df)
+    df.loc[1, "C_a"] = 1.6
+    assert solver.first_invalid_row(df) == (2, "R_pv", "blank (a number is required)")
+    df.loc[2, "R_pv"] = 0.08
+    df.loc[0, "C_v"] = -3
+    assert solver.first_invalid_row(df) == (0, "C_v", "-3.0 mL/mmHg must be > 0")
+    with pytest.raises(ValueError, match=r"steps_per_cycle = 19 is too small \(need >= 20\)"):
+        solver.simulate(default_params, steps_per_cycle=solver.MIN_STEPS_PER_CYCLE - 1)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from dataclasses import dataclass
 
@@ -50,6 +51,7 @@ from .registry import (
     N_OUTPUTS,
     OUTPUT_NAMES,
     PARAMETER_INDEX,
+    PARAMETER_NAMES,
     V_TOTAL_ML,
     WOOD_TO_DYN,
 )
@@ -68,9 +70,16 @@ STATUS_REASONS = {
     6: "integration failed",
     7: "parameters outside the model's domain (not finite, Hr, a compliance or resistance <= 0, "
        "or r_sys not in (0, 2/3))",
+    8: "unphysical parameters (a negative unstressed volume, or a ventricle's systolic compliance "
+       "not below its diastolic one)",
 }
+#: Status of a row whose parameters the equations accept but no circulation has (see
+#: :func:`unphysical`): simulated, outputs kept, flagged.
+STATUS_UNPHYSICAL = 8
 
 DEFAULT_STEPS_PER_CYCLE = 600
+#: Fewest time steps per cycle the batch solver accepts.
+MIN_STEPS_PER_CYCLE = 20
 DEFAULT_N_CYCLES = 12
 DEFAULT_WINDOW_CYCLES = 3
 
@@ -79,10 +88,68 @@ _P = PARAMETER_INDEX
 _ROW_ERRORS = (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError)
 
 
+class IntegrationError(RuntimeError):
+    """The reference integrator gave up on a parameter set (step size underflow, say)."""
+
+
+#: Numerical failures of one reference solve; a programming error propagates.
+_REFERENCE_ERRORS = (IntegrationError, *_ROW_ERRORS)
+_V0 = [PARAMETER_INDEX[n] for n in ("V0_l", "V0_a", "V0_v", "V0_r", "V0_pa", "V0_pv")]
+
+
+def unphysical(params) -> np.ndarray:
+    """Boolean mask (N,) of parameter sets the equations accept but no circulation has:
+    an unstressed volume < 0 (mL), or ``C_l_sys >= C_l_dia`` or ``C_r_sys >= C_r_dia``
+    (a ventricle no stiffer in systole than in diastole does not pump). Such rows are
+    simulated and flagged with status 8, not rejected."""
+    P = np.atleast_2d(np.asarray(params, dtype=float))
+    with np.errstate(invalid="ignore"):
+        return ((P[:, _V0] < 0).any(axis=1) | (P[:, _P["C_l_sys"]] >= P[:, _P["C_l_dia"]])
+                | (P[:, _P["C_r_sys"]] >= P[:, _P["C_r_dia"]]))
+
+
+def first_invalid_row(params) -> tuple[int, str | None, str] | None:
+    """The first row (0-based) the simulator rejects, its column and why; None when all
+    rows are valid.
+
+    ``params`` as for :func:`simulate`; in a DataFrame a blank cell or one that is not a
+    number (text) is named too. The reason leaves out the parameter's name:
+    ``"'abc' is not a number"``, ``"blank (a number is required)"``, or the check of
+    :func:`cvsim6.model.validate_parameters` (``"0.0 mmHg·s/mL must be > 0"``).
+    """
+    if isinstance(params, pd.DataFrame):
+        missing = [n for n in PARAMETER_NAMES if n not in params.columns]
+        if missing:
+            raise model.ParameterError(f"missing parameter column(s): {', '.join(missing)}")
+        raw = params.loc[:, list(PARAMETER_NAMES)]
+        num = raw.apply(pd.to_numeric, errors="coerce")
+        text = (raw.notna() & num.isna()).to_numpy()
+        blank = raw.isna().to_numpy()
+        P = num.to_numpy(dtype=float)
+    else:
+        P = model.as_parameter_array(params)
+        text = blank = np.zeros(P.shape, dtype=bool)
+    bad = model.outside_domain(P) | text.any(axis=1) | blank.any(axis=1)
+    if not bad.any():
+        return None
+    row = int(np.argmax(bad))
+    if text[row].any():
+        col = int(np.argmax(text[row]))
+        return row, PARAMETER_NAMES[col], f"{raw.iat[row, col]!r} is not a number"
+    if blank[row].any():
+        return row, PARAMETER_NAMES[int(np.argmax(blank[row]))], "blank (a number is required)"
+    try:
+        model.validate_parameters(P[row : row + 1])
+    except model.ParameterError as exc:
+        m = re.match(r"row 0: parameter (\w+) = (.*)$", str(exc))
+        return (row, m[1], m[2]) if m else (row, None, re.sub(r"^row 0: ", "", str(exc)))
+    raise AssertionError("outside_domain and validate_parameters disagree")  # pragma: no cover
+
+
 # ----------------------------------------------------------------------------- API
 def _check_schedule(steps_per_cycle: int, n_cycles: int, window_cycles: int) -> None:
-    if int(steps_per_cycle) < 20:
-        raise ValueError(f"steps_per_cycle = {steps_per_cycle} is too small (need >= 20)")
+    if int(steps_per_cycle) < MIN_STEPS_PER_CYCLE:
+        raise ValueError(f"steps_per_cycle = {steps_per_cycle} is too small (need >= {MIN_STEPS_PER_CYCLE})")
     if not 1 <= int(window_cycles) < int(n_cycles):
         raise ValueError(f"window_cycles = {window_cycles} must lie in [1, n_cycles = {n_cycles})")
 
@@ -100,7 +167,9 @@ def simulate_batch(
 
     Returns ``(outputs, status)``: outputs (N, 16) in registry order and units,
     status (N,) integer codes (:data:`STATUS_REASONS`; 0 = ok). A row that fails or
-    leaves the physiological range is flagged; the other rows are unaffected.
+    leaves the physiological range is flagged; the other rows are unaffected. A row with
+    :func:`unphysical` parameters is simulated and flagged with status 8 (this takes
+    precedence over the other flags: it is their likely cause).
     Rows outside the model's domain (:func:`cvsim6.model.outside_domain`) raise
     :class:`cvsim6.model.ParameterError` naming the row (``invalid="raise"``) or are
     left unsimulated with status 7 (``invalid="flag"``, e.g. for network predictions).
@@ -143,6 +212,7 @@ def simulate_batch(
             bar.update(sl.stop - sl.start)
     if bar is not None:
         bar.close()
+    status[unphysical(P)] = STATUS_UNPHYSICAL
     return out, status
 
 
@@ -157,8 +227,19 @@ def simulate(
     """Simulate parameter sets; return a DataFrame of the 16 outputs plus ``status``.
 
     ``status`` is ``"ok"`` or the reason a row was flagged. ``method`` is ``"batch"``
-    (fast, default) or ``"reference"`` (scipy Radau, seconds per set).
+    (fast, default) or ``"reference"`` (scipy Radau, seconds per set). A row the model
+    cannot take (text or blank cell, a value outside its domain) raises
+    :class:`cvsim6.model.ParameterError` naming the row (0-based) and the parameter
+    (:func:`first_invalid_row`); unphysical rows are simulated and flagged (status 8).
     """
+    if method not in ("batch", "reference"):
+        raise ValueError(f"unknown method {method!r}: choose 'batch' or 'reference'")
+    bad = first_invalid_row(params)
+    if bad is not None:
+        row, col, why = bad
+        raise model.ParameterError(f"row {row}: parameter {col}: {why}" if col else f"row {row}: {why}")
+    if isinstance(params, pd.DataFrame):
+        params = params.loc[:, list(PARAMETER_NAMES)].apply(pd.to_numeric)
     if method == "batch":
         out, st = simulate_batch(params, steps_per_cycle, n_cycles, window_cycles, progress=progress)
     elif method == "reference":
@@ -331,7 +412,7 @@ def reference_solution(
         sol = solve_ivp(fun, (t, nxt), P, method="Radau", rtol=rtol, atol=atol, jac=jac,
                         dense_output=True, events=events)
         if sol.status < 0:
-            raise RuntimeError(f"Radau failed at t = {t:.6g} s: {sol.message}")
+            raise IntegrationError(f"Radau failed at t = {t:.6g} s: {sol.message}")
         n_rhs += sol.nfev
         if sol.status == 1:
             hits = [(te[0], j) for j, te in enumerate(sol.t_events) if len(te)]
@@ -415,7 +496,10 @@ def simulate_reference(
     atol: float = 1e-10,
     progress: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Reference outputs of each row (scipy Radau), same contract as :func:`simulate_batch`."""
+    """Reference outputs of each row (scipy Radau), same contract as :func:`simulate_batch`.
+
+    A row whose integration fails numerically (:class:`IntegrationError`, a singular
+    system) gets status 6; any other exception is a bug and propagates."""
     P = model.as_parameter_array(params)
     model.validate_parameters(P)
     out = np.full((P.shape[0], N_OUTPUTS), np.nan)
@@ -429,7 +513,7 @@ def simulate_reference(
         try:
             sol = reference_solution(P[r], n_cycles=n_cycles, rtol=rtol, atol=atol)
             out[r] = reference_outputs(sol, window_cycles)
-        except Exception as exc:  # noqa: BLE001
+        except _REFERENCE_ERRORS as exc:
             log.warning("row %d: reference integration failed: %s", r, exc)
             status[r] = 6
             continue
@@ -437,4 +521,5 @@ def simulate_reference(
             status[r] = 1
         elif not (0 < out[r, 12] < 1 and out[r, 13] > 0):
             status[r] = 4
+    status[unphysical(P)] = STATUS_UNPHYSICAL
     return out, status

@@ -1,20 +1,44 @@
 """Evaluation of trained networks: error statistics and the tables built on them."""
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pandas as pd
 
 from . import datasets, paper_values
 from .registry import OUTPUT_NAMES, OUTPUTS
 
+log = logging.getLogger(__name__)
+
 
 def error_statistics(y_true: np.ndarray, y_pred: np.ndarray) -> pd.DataFrame:
-    """Mean, max and std of the absolute error per output (rows), NaN rows ignored."""
+    """Mean, max and std of the absolute error per output (rows, units of each output).
+
+    A row with a non-finite error anywhere is left out of every statistic; how many were
+    is counted (logged, and in ``attrs``: ``n_rows`` given, ``n_used``, ``n_nonfinite``,
+    for the table's caption, see :func:`nonfinite_words`). NaN everywhere if none is left.
+    """
     err = np.abs(np.asarray(y_pred, float) - np.asarray(y_true, float))
     ok = np.isfinite(err).all(axis=1)
     err = err[ok]
-    return pd.DataFrame({"mean": err.mean(0), "max": err.max(0), "std": err.std(0)},
-                        index=pd.Index(OUTPUT_NAMES, name="output"))
+    n_bad = int((~ok).sum())
+    if n_bad:
+        log.warning("error statistics: %d of %d rows left out (a non-finite value)", n_bad, len(ok))
+    if len(err):
+        cols = {"mean": err.mean(0), "max": err.max(0), "std": err.std(0)}
+    else:
+        cols = {k: np.full(err.shape[1], np.nan) for k in ("mean", "max", "std")}
+    stats = pd.DataFrame(cols, index=pd.Index(OUTPUT_NAMES, name="output"))
+    stats.attrs.update(n_rows=int(len(ok)), n_used=int(ok.sum()), n_nonfinite=n_bad)
+    return stats
+
+
+def nonfinite_words(stats: pd.DataFrame) -> str:
+    """Caption words for the rows :func:`error_statistics` left out, e.g.
+    ``"; 3 rows with a non-finite value left out"`` ("" when none were)."""
+    n = int(stats.attrs.get("n_nonfinite", 0))
+    return f"; {n:,} row{'s' if n != 1 else ''} with a non-finite value left out" if n else ""
 
 
 def error_table(stats: pd.DataFrame, paper: dict | None) -> pd.DataFrame:
@@ -37,8 +61,8 @@ def emulator_validation(model: str, validation: str, csv: str, md: str, study: s
     stats = error_statistics(y, emu.predict(v))
     paper = paper_values.EMULATOR_VALIDATION_STRUCTURAL if study == "structural" else None
     write_table(error_table(stats, paper), csv, md,
-                caption=f"Emulator absolute error on the {len(v):,} validation sets ({study} study)"
-                        + (", paper appendix C beside ours" if paper else ""))
+                caption=f"Emulator absolute error on the {len(v):,} validation sets ({study} study"
+                        f"{nonfinite_words(stats)})" + (", paper appendix C beside ours" if paper else ""))
 
 
 def relative_l2_errors(y_true: np.ndarray, y_pred: np.ndarray) -> np.ndarray:

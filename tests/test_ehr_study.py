@@ -49,3 +49,128 @@ def test_ehr_stage_end_to_end(tmp_path):
         np.testing.assert_allclose(first.loc[obs.index[seen], "completed_" + n], obs.loc[seen, n])
     ood = pd.read_csv(work / "results/tables/ehr_ood_delta0.5.csv")
     assert len(ood) == 46 and ood["ood_percentile"].between(0, 100).all()
+
+
+# ----------------------------------------------------------------------------- bad input, OOD
+@pytest.fixture(scope="module")
+def gaussian_twin():
+    """Small networks on 440 simulated EHR-prior sets; the flow's couplings are the identity,
+    so its density is the Gaussian of the standardized outputs (fitted on the first 400)."""
+    import torch
+
+    from conftest import prior_sample
+    from cvsim6 import networks, solver
+
+    torch.manual_seed(0)
+    v = prior_sample("ehr", 440, 6)
+    y, st = solver.simulate_batch(v)
+    assert (st == 0).all()
+    emu = networks.Emulator(16, 3)
+    emu.x_scaler.fit(v)
+    emu.y_scaler.fit(y)
+    flow = networks.RealNVP(hidden=8, blocks=4, layers_per_block=3)
+    with torch.no_grad():
+        for layer in flow.layers:
+            for net in (layer.s, layer.t):
+                net[-1].weight.zero_()
+                net[-1].bias.zero_()
+    flow.y_scaler.fit(y[:400])
+    ed = networks.EncoderDecoder(encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2)
+    ed.x_scaler.fit(v)
+    ed.y_scaler.fit(y)
+    return flow.eval(), ed, emu, y
+
+
+def test_obvious_outlier_ranks_below_typical_simulated_patients(gaussian_twin):
+    flow, ed, emu, y = gaussian_twin
+    names = list(registry.OUTPUT_NAMES)
+    obs = pd.DataFrame(y[400:440], columns=names)  # 40 simulated patients the reference does not hold
+    obs.iloc[:, [2, 4, 6, 8, 10, 14, 15]] = np.nan  # the paper's missing set
+    outlier = obs.iloc[0].copy()
+    outlier[["Hr", "P_r_sys", "LVEF"]] = [25.0, 380.0, 0.03]  # possible in their units, far from any simulation
+    obs.loc["outlier"] = outlier
+    warnings = []
+    df = ehr_study.invert_observations(obs, flow, ed, emu, n_latent=2, n_flow_samples=4096, reference_outputs=y[:400],
+                                       n_reference=200, reference_flow_samples=1024,
+                                       on_warning=lambda pid, msg: warnings.append((pid, msg)))
+    per = df.groupby("id", sort=False).first()
+    assert (per["ood_reference_size"] == 200).all()  # resolution 0.5 percentage points
+    typical = per.drop(index="outlier")["ood_percentile"]
+    assert per.loc["outlier", "ood_percentile"] == 0.0  # less likely than all 200 simulated references
+    assert (typical > 0).all() and 25 < typical.median() < 75  # exchangeable with the references
+    assert per.loc["outlier", "outside_training"] == "Hr;P_r_sys;LVEF"
+    assert (per.drop(index="outlier")["outside_training"] == "").all()
+    assert [p for p, _ in warnings] == ["outlier"] * 3
+    assert warnings[0][1].startswith("Hr = 25 bpm is far outside the training range [")
+
+
+def test_invert_observations_reports_instead_of_aborting(gaussian_twin):
+    flow, ed, emu, y = gaussian_twin
+    obs = pd.DataFrame(y[400:403], columns=list(registry.OUTPUT_NAMES), index=["a", "b", "c"])
+    obs.loc["b"] = np.nan
+    seen = []
+    df = ehr_study.invert_observations(obs, flow, ed, emu, n_latent=3, n_flow_samples=4096, reference_outputs=y[:400],
+                                       n_reference=20, reference_flow_samples=256,
+                                       on_warning=lambda pid, msg: seen.append((pid, msg)))
+    assert list(df["id"]) == ["a"] * 3 + ["b"] + ["c"] * 3
+    assert list(df.groupby("id", sort=False)["status"].first()) == ["ok", "not inverted: no output given", "ok"]
+    assert seen == [("b", "not inverted: no output given")]
+    assert df.loc[df["id"] == "b", list(registry.PARAMETER_NAMES)].isna().all().all()
+    # the blank row and the rows after a patient do not change its inversion (seeds follow the row's position)
+    alone = ehr_study.invert_observations(obs.loc[["a"]], flow, ed, emu, n_latent=3, n_flow_samples=4096,
+                                          reference_outputs=y[:400], n_reference=20, reference_flow_samples=256)
+    pd.testing.assert_frame_equal(alone, df[df["id"] == "a"].reset_index(drop=True))
+
+
+def test_invert_observations_rejects_before_computing(gaussian_twin):
+    flow, ed, emu, y = gaussian_twin
+    kw = dict(n_latent=2, n_flow_samples=100, reference_outputs=y[:400], n_reference=5)
+    with pytest.raises(ValueError, match=r"no observations to invert \(the table has no rows\)"):
+        ehr_study.invert_observations(pd.DataFrame(columns=["Hr", "CO"]), flow, ed, emu, **kw)
+    pct = pd.DataFrame({"Hr": [70.0, 80.0], "LVEF": [0.6, 55.0]}, index=["p1", "p2"])
+    with pytest.raises(ValueError, match=r"^LVEF is a fraction \(0-1\); got 55 in observation 'p2': percent\?$"):
+        ehr_study.invert_observations(pct, flow, ed, emu, **kw)
+    text = pd.DataFrame({"Hr": [70.0, "fast"]}, index=["p1", "p2"])
+    with pytest.raises(ValueError, match=r"observation 'p2': Hr = 'fast' is not a number"):
+        ehr_study.invert_observations(text, flow, ed, emu, **kw)
+
+
+def test_unit_problems():
+    assert ehr_study.unit_problem("LVEF", 0.55) is None and ehr_study.unit_problem("LVEF", np.nan) is None
+    assert ehr_study.unit_problem("LVEF", 55.0) == ("LVEF is a fraction (0-1)", "percent?")
+    assert ehr_study.unit_problem("LVEF", -0.1) == ("LVEF is a fraction (0-1)", "")
+    assert ehr_study.unit_problem("CO", 5000.0) == ("CO is in L/min (0.1 to 50)", "mL/min?")
+    assert ehr_study.unit_problem("P_a_sys", 16000.0)[1] == "Pa? (1 mmHg = 133.3 Pa)"
+    assert ehr_study.unit_problem("PVR", 2.5) is None  # Wood or a tiny gradient: not decidable by value
+    obs = pd.DataFrame({"LVEF": [0.5, 55.0, 60.0], "CO": [5.0, 4.0, 0.0]})
+    assert [p[:3] for p in ehr_study.unit_problems(obs)] == [(1, "LVEF", 55.0), (2, "LVEF", 60.0), (2, "CO", 0.0)]
+
+
+@pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
+def test_real_patients_pass_the_unit_checks():
+    from cvsim6 import ehr
+
+    assert ehr_study.unit_problems(ehr.ehr_outputs(REAL)) == []  # all 84, selected or not
+
+
+def test_not_inverted_patients_leave_e_k_and_ood_table_readable(tmp_path):
+    names = registry.OUTPUT_NAMES
+    obs = pd.DataFrame(np.nan, index=pd.Index([1, 2], name="patient"), columns=list(names))
+    obs["Hr"] = [60.0, 80.0]
+    pred = pd.DataFrame({"id": [1, 1, 2], "status": ["ok", "ok", "not inverted: no output given"],
+                         "draw": [0, 1, None]})
+    for n in names:
+        pred[ehr_study.PRED + n] = [0.0, 0.0, np.nan]
+    pred[ehr_study.PRED + "Hr"] = [61.0, 63.0, np.nan]
+    e = ehr_study.error_per_output(obs, pred)
+    assert e.loc["Hr", "e_k"] == pytest.approx(2.0)  # patient 2 has no predictions
+    pred["log_density"] = [-3.0, -3.0, np.nan]
+    pred["ood_percentile"] = [0.5, 0.5, np.nan]
+    pred["ood_reference_size"] = [200, 200, None]
+    pred["outside_training"] = ["", "", ""]
+    pred.to_parquet(tmp_path / "p.parquet")
+    ehr_study.ood_table(str(tmp_path / "p.parquet"), str(tmp_path / "t.csv"), str(tmp_path / "t.md"))
+    t = pd.read_csv(tmp_path / "t.csv")
+    assert list(t["status"]) == ["ok", "not inverted: no output given"]
+    assert list(t["flag (< 1st percentile)"]) == [True, False]
+    assert "among 200 simulated outputs (resolution 0.5 percentage points)" in (tmp_path / "t.md").read_text()

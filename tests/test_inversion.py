@@ -55,8 +55,8 @@ def test_decode_latent_shapes_and_seed():
     torch.manual_seed(0)
     ed = networks.EncoderDecoder()
     y = np.random.default_rng(0).normal(size=(3, 16))
-    a = inversion.decode_latent(ed, y, 5, seed=2)
-    b = inversion.decode_latent(ed, y, 5, seed=2)
+    a = inversion.decode_latent(ed, y, 5, seed=2, corrector_steps=0)
+    b = inversion.decode_latent(ed, y, 5, seed=2, corrector_steps=0)
     assert a.shape == (3, 5, 23) and np.array_equal(a, b)
     assert not np.allclose(a[:, 0], a[:, 1])  # different latent draws, different parameters
 
@@ -68,8 +68,8 @@ def test_decode_latent_corrector_steps():
     y = np.random.default_rng(1).normal(size=(2, 16)) * 10 + 50
     w = torch.randn(2 * 4, ed.latent_dim, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
     y_rep = np.repeat(y, 4, axis=0)
-    plain = inversion.decode_latent(ed, y, 4, seed=3)
-    np.testing.assert_array_equal(plain.reshape(-1, 23), ed.invert(y_rep, w.float().numpy()))
+    plain = inversion.decode_latent(ed, y, 4, seed=3, corrector_steps=0)
+    np.testing.assert_array_equal(plain.reshape(-1, 23), ed.invert(y_rep, w.float().numpy(), corrector_steps=0))
     v = plain.reshape(-1, 23)
     with torch.no_grad():
         for _ in range(2):
@@ -87,3 +87,45 @@ def test_ood_percentile():
     assert inversion.ood_percentile(-1.0, ref) == 0.0
     assert inversion.ood_percentile(49.5, ref) == 50.0
     assert inversion.ood_percentile(1e9, ref) == 100.0
+
+
+def test_corrector_steps_have_one_default():
+    """The library, the workflow's functions and the CLI decode with the same default."""
+    import inspect
+
+    from cvsim6 import cli, ehr_study
+
+    assert networks.DEFAULT_CORRECTOR_STEPS == 2  # the paper's code
+    for f in (networks.EncoderDecoder.invert, inversion.decode_latent, ehr_study.invert_observations,
+              ehr_study.invert_ehr_patients):
+        assert inspect.signature(f).parameters["corrector_steps"].default == networks.DEFAULT_CORRECTOR_STEPS, f
+    args = cli.build_parser().parse_args(["invert", "obs.csv", "-o", "out.csv"])
+    assert args.corrector_steps == networks.DEFAULT_CORRECTOR_STEPS
+    torch.manual_seed(0)
+    ed = networks.EncoderDecoder()
+    y = np.random.default_rng(1).normal(size=(2, 16)) * 10 + 50
+    by_default = inversion.decode_latent(ed, y, 3, seed=1)
+    np.testing.assert_array_equal(by_default, inversion.decode_latent(ed, y, 3, seed=1, corrector_steps=2))
+    assert not np.allclose(by_default, inversion.decode_latent(ed, y, 3, seed=1, corrector_steps=0))
+
+
+def test_reference_scores_are_algorithm_1_per_row(flow):
+    """Completing every reference row with one shared sample set gives, row by row, what
+    Algorithm 1 gives that row with the same seed; nothing missing = the row's own density."""
+    rng = np.random.default_rng(4)
+    y = rng.normal(size=(7, 16)) * registry.noise_std() + 50.0
+    missing = np.isnan(observation())
+    got = inversion.reference_scores(flow, y, missing, 5000, seed=9, max_rows_per_pass=3 * 5000)
+    for i in range(len(y)):
+        one = inversion.complete_missing(flow, np.where(missing, np.nan, y[i]), 5000, seed=9)[1][0]
+        assert got[i] == pytest.approx(one, rel=1e-6, abs=1e-6)
+    full = inversion.reference_scores(flow, y, np.zeros(16, bool), 5000)
+    np.testing.assert_allclose(full, flow.log_prob_physical(y))
+
+
+def test_ood_percentile_resolution():
+    """With n reference scores the percentile moves in steps of 100/n; non-finite ones do not count."""
+    ref = np.r_[np.arange(1000.0), -np.inf, np.nan]
+    assert inversion.ood_percentile(0.5, ref) == pytest.approx(0.1)
+    assert inversion.ood_percentile(-5.0, ref) == 0.0
+    assert np.isnan(inversion.ood_percentile(1.0, [np.nan]))

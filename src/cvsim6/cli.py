@@ -8,103 +8,286 @@ has the 16 outputs plus ``status``, one row per input row, in the same order.
 names as columns, one patient per row (blank = missing; an optional ``patient``
 column names them); PARAMS.csv has, per patient, the sampled parameter sets with
 their emulated outputs (``pred_*``) and the patient's out-of-distribution percentile.
+
+Bad input. A problem with the input file or an option stops the command before anything
+is computed or written, with ONE line on stderr, ``error: FILE: line N: ...`` (N is the
+CSV line, header = line 1; the column is named where there is one), and exit code 2:
+a file that is missing, a directory, empty, not UTF-8 text or not CSV; a header without
+rows; a missing, unknown or repeated column; a cell that is not a number; a blank
+parameter; a parameter outside the model's domain (not finite; Hr, a compliance or a
+resistance <= 0; r_sys not in (0, 2/3)); an observation impossible in its unit (LVEF is a
+fraction, not percent; see :data:`cvsim6.ehr_study.PLAUSIBLE_RANGE`); an option below its
+minimum (``--steps-per-cycle`` < :data:`cvsim6.solver.MIN_STEPS_PER_CYCLE`). Blank lines
+are skipped; ``NA``, ``NaN``, ``none`` and ``null`` count as blank.
+
+Unphysical values are flagged, not errors: a parameter set the equations accept but no
+circulation has (a negative unstressed volume, a ventricle's systolic compliance not
+below its diastolic one) is simulated and flagged in ``status`` (status 8 of
+:data:`cvsim6.solver.STATUS_REASONS`), as is a row whose solution leaves the
+physiological range; the other rows are unaffected and the exit code is 0. ``invert``
+flags its decoded parameter sets the same way, per draw (``draw_status``, and
+``outside_domain`` for sets the simulator cannot take).
+
+``invert`` inverts every patient it can: one that cannot be inverted (all outputs blank,
+say) keeps one row with the reason in ``status``; an observed output far outside the
+range the networks were trained on is inverted but named in ``outside_training``. Each
+such case prints a ``warning: FILE: line N ...`` line on stderr. Exit code 1 when a
+patient was not inverted (the others are written), else 0.
 """
 from __future__ import annotations
 
 import argparse
+import csv
 import logging
+import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from . import __version__
 from .model import ParameterError
+from .networks import DEFAULT_CORRECTOR_STEPS
+from .registry import OUTPUT_NAMES, PARAMETER_NAMES
+
+#: Cell texts read as blank (case-insensitive, after stripping spaces).
+BLANK = frozenset({"", "na", "n/a", "nan", "none", "null"})
 
 
-def _read_csv(path: str) -> pd.DataFrame | None:
-    """The CSV at ``path``, or None after printing why it cannot be read."""
+class InputError(Exception):
+    """Bad input or option: the command prints ``error: <message>`` and exits with 2."""
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _read_csv(path: str) -> tuple[pd.DataFrame, np.ndarray]:
+    """The CSV at ``path`` as strings (blank cells NaN) and each row's line number in the
+    file (header = line 1, or the first line that is not blank: ``attrs["header_line"]``).
+    Raises :class:`InputError` saying why it cannot be read."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{path}: no such file")
+    if p.is_dir():
+        raise InputError(f"{path}: is a directory, not a CSV file")
+    records, lines, prev = [], [], 0
     try:
-        return pd.read_csv(path)
-    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        print(f"error: cannot read {path}: {exc}", file=sys.stderr)
-        return None
+        with open(p, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            for rec in reader:
+                start, prev = prev + 1, reader.line_num
+                if len(rec) > 1 or (rec and rec[0].strip()):  # pandas' rule: blank lines are skipped
+                    records.append(rec)
+                    lines.append(start)
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a CSV file (not UTF-8 text)") from None
+    except csv.Error as exc:
+        raise InputError(f"{path}: not a CSV file ({_one_line(exc)}, line {prev + 1})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror or _one_line(exc)}") from None
+    if not records:
+        raise InputError(f"{path}: the file is empty (no header, no rows)")
+    header = [h.strip() for h in records[0]]
+    if len(header) == 1 and (";" in header[0] or "\t" in header[0]):
+        sep = "';'" if ";" in header[0] else "tabs"
+        raise InputError(f"{path}: line {lines[0]}: the header is a single column: fields separated by {sep}? "
+                         "cvsim6 reads comma-separated values")
+    seen: dict[str, int] = {}
+    for h in header:
+        if h and h in seen:
+            raise InputError(f"{path}: line {lines[0]}: column {h} appears twice in the header")
+        seen[h] = 1
+    for rec, line in zip(records[1:], lines[1:]):
+        if len(rec) > len(header):
+            raise InputError(f"{path}: line {line}: {len(rec)} values but the header (line {lines[0]}) "
+                             f"has {len(header)} columns")
+    rows = [rec + [""] * (len(header) - len(rec)) for rec in records[1:]]
+    df = pd.DataFrame(rows, columns=header, dtype=object)
+    df = df.map(lambda c: np.nan if c.strip().lower() in BLANK else c.strip())
+    df.attrs["header_line"] = lines[0]
+    return df, np.array(lines[1:], dtype=int)
 
 
-def _write_csv(df: pd.DataFrame, path: str, float_format: str) -> Path:
-    """Write ``df`` to ``path`` (parent folders created); returns the path."""
+def _numbers(df: pd.DataFrame, columns: list[str], path: str, lines: np.ndarray) -> pd.DataFrame:
+    """``df[columns]`` as floats (blank = NaN); a cell that is not a number raises
+    :class:`InputError` naming its line and column."""
+    out = {}
+    for c in columns:
+        col = df[c]
+        try:
+            out[c] = np.asarray(col.fillna("nan").to_list(), dtype=float)
+        except ValueError:
+            for i, cell in enumerate(col):
+                try:
+                    float("nan" if pd.isna(cell) else cell)
+                except ValueError:
+                    raise InputError(f"{path}: line {lines[i]}, column {c}: {cell!r} is not a number") from None
+            raise  # pragma: no cover - a float() that numpy rejected
+    return pd.DataFrame(out, index=df.index)
+
+
+def _check_output(path: str, inputs: list[str]) -> Path:
+    """The output path, after checking that it can be written and overwrites no input."""
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    df.to_csv(out, index=False, float_format=float_format)
+    if out.is_dir():
+        raise InputError(f"{path}: the output is a directory")
+    if any(out.resolve() == Path(i).resolve() for i in inputs):
+        raise InputError(f"{path}: the output would overwrite the input")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot create its folder: {exc.strerror or _one_line(exc)}") from None
+    if not os.access(out.parent, os.W_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        raise InputError(f"{path}: not writable")
     return out
 
 
-def _simulate(args: argparse.Namespace) -> int:
-    from .solver import simulate
-
-    params = _read_csv(args.params)
-    if params is None:
-        return 2
+def _write_csv(df: pd.DataFrame, out: Path, float_format: str) -> None:
     try:
-        df = simulate(params, method=args.method, steps_per_cycle=args.steps_per_cycle,
-                      progress=args.progress)
-    except ParameterError as exc:
-        print(f"error: {args.params}: {exc}", file=sys.stderr)
-        return 2
-    out = _write_csv(df, args.output, "%.10g")
-    n_bad = int((df["status"] != "ok").sum())
-    msg = f"simulated {len(df)} parameter set(s) -> {out}"
-    if n_bad:
-        msg += f" ({n_bad} flagged, see the status column)"
+        df.to_csv(out, index=False, float_format=float_format)
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write: {exc.strerror or _one_line(exc)}") from None
+
+
+def _lines(lines, limit: int = 5) -> str:
+    lines = [str(n) for n in lines]
+    return ", ".join(lines[:limit]) + (f" and {len(lines) - limit} more" if len(lines) > limit else "")
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from . import solver
+
+    if args.steps_per_cycle < solver.MIN_STEPS_PER_CYCLE:
+        raise InputError(f"--steps-per-cycle {args.steps_per_cycle} is below the solver's minimum of "
+                         f"{solver.MIN_STEPS_PER_CYCLE}")
+    path = args.params
+    df, lines = _read_csv(path)
+    head = f"{path}: line {df.attrs['header_line']}"
+    if not any(n in df.columns for n in PARAMETER_NAMES):
+        raise InputError(f"{head}: no parameter column in the header; expected the 23 names "
+                         f"{', '.join(PARAMETER_NAMES)}")
+    missing = [n for n in PARAMETER_NAMES if n not in df.columns]
+    if missing:
+        raise InputError(f"{head}: missing parameter column(s) {', '.join(missing)}")
+    if len(df) == 0:
+        raise InputError(f"{path}: no rows (the file has a header only)")
+    bad = solver.first_invalid_row(df[list(PARAMETER_NAMES)])
+    if bad is not None:
+        row, col, why = bad
+        raise InputError(f"{path}: line {lines[row]}" + (f", column {col}" if col else "") + f": {why}")
+    params = _numbers(df, list(PARAMETER_NAMES), path, lines)
+    out = _check_output(args.output, [path])
+    try:
+        result = solver.simulate(params, method=args.method, steps_per_cycle=args.steps_per_cycle,
+                                 progress=args.progress)
+    except ParameterError as exc:  # pragma: no cover - first_invalid_row found every such row
+        raise InputError(f"{path}: {exc}") from None
+    _write_csv(result, out, "%.10g")
+    flagged = result["status"] != "ok"
+    msg = f"simulated {len(result)} parameter set(s) -> {out}"
+    if flagged.any():
+        msg += (f" ({int(flagged.sum())} flagged, see the status column: "
+                f"line {_lines(lines[flagged.to_numpy()])})")
     print(msg, file=sys.stderr)
     return 0
 
 
 def _invert(args: argparse.Namespace) -> int:
-    import numpy as np
+    from .ehr_study import invert_observations, unit_message, unit_problems
 
-    from .ehr_study import invert_observations
-    from .networks import load_model
-
+    for opt, value, low in (("--samples", args.samples, 1), ("--flow-samples", args.flow_samples, 1),
+                            ("--reference-size", args.reference_size, 1),
+                            ("--corrector-steps", args.corrector_steps, 0)):
+        if value < low:
+            raise InputError(f"{opt} {value} is below its minimum of {low}")
+    path = args.observations
+    df, lines = _read_csv(path)
+    head = f"{path}: line {df.attrs['header_line']}"
+    unknown = [c for c in df.columns if c not in OUTPUT_NAMES and c != "patient"]
+    if unknown:
+        raise InputError(f"{head}: unknown column(s) {', '.join(map(repr, unknown))}; expected 'patient' and any "
+                         f"of the 16 outputs {', '.join(OUTPUT_NAMES)}")
+    names = [n for n in OUTPUT_NAMES if n in df.columns]
+    if not names:
+        raise InputError(f"{head}: no output column in the header; expected any of {', '.join(OUTPUT_NAMES)}")
+    if len(df) == 0:
+        raise InputError(f"{path}: no patients (the file has a header only)")
+    obs = _numbers(df, names, path, lines)
+    if "patient" in df.columns:
+        ids = df["patient"]
+        first_seen: dict[str, int] = {}
+        for i, pid in enumerate(ids):
+            if pd.isna(pid):
+                raise InputError(f"{path}: line {lines[i]}, column patient: blank patient name")
+            if pid in first_seen:
+                raise InputError(f"{path}: line {lines[i]}, column patient: patient {pid!r} appears twice "
+                                 f"(also line {first_seen[pid]})")
+            first_seen[pid] = lines[i]
+        obs.index = pd.Index(ids.to_list(), name="patient")
+    problems = unit_problems(obs)
+    if problems:
+        i = problems[0][0]
+        raise InputError(f"{path}: {unit_message(problems, f'line {lines[i]}' + _who(obs, i, df))}")
+    line_of = dict(zip(obs.index, lines))
     models = Path(args.models)
     tag = f"{args.noise_level:g}"
     files = {"emulator": models / "emulator.pt", "flow": models / f"flow_delta{tag}.pt",
              "encoder_decoder": models / f"encoder_decoder_delta{tag}.pt"}
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
-        print(f"error: model file(s) not found: {', '.join(missing)} (train them with the workflow, "
-              f"or pass --models and --noise-level)", file=sys.stderr)
-        return 2
-    obs = _read_csv(args.observations)
-    if obs is None:
-        return 2
-    if "patient" in obs.columns:
-        obs = obs.set_index("patient")
-    try:
-        obs = obs.apply(pd.to_numeric, errors="raise")
-    except (ValueError, TypeError) as exc:
-        print(f"error: {args.observations}: a value is not a number: {exc}", file=sys.stderr)
-        return 2
-    flow = load_model(files["flow"])
+        raise InputError(f"model file(s) not found: {', '.join(missing)} (train them with the workflow, "
+                         f"or pass --models and --noise-level)")
+    out = _check_output(args.output, [path])
+
+    def warn(pid, message: str) -> None:
+        i = obs.index.get_loc(pid)
+        print(f"warning: {path}: line {line_of[pid]}{_who(obs, i, df)}: {message}", file=sys.stderr)
+
+    nets = {k: _load_model(f) for k, f in files.items()}
+    ref = None
     if args.reference:
         from .datasets import load_split
 
-        ref = load_split(args.reference)[1]
-    else:  # the flow's own samples stand in for simulated outputs
-        ref = flow.sample_physical(2000)
-        ref = ref[np.isfinite(ref).all(axis=1)]
+        if not Path(args.reference).is_file():
+            raise InputError(f"--reference {args.reference}: no such file")
+        try:
+            ref = load_split(args.reference)[1]
+        except (OSError, ValueError, KeyError) as exc:
+            raise InputError(f"--reference {args.reference}: not a split of simulated data "
+                             f"({_one_line(exc)})") from None
     try:
-        df = invert_observations(obs, flow, load_model(files["encoder_decoder"]),
-                                 load_model(files["emulator"]), n_latent=args.samples,
-                                 n_flow_samples=args.flow_samples, seed=args.seed, reference_outputs=ref,
-                                 n_reference=args.reference_size, progress=args.progress,
-                                 corrector_steps=args.corrector_steps)
-    except ValueError as exc:
-        print(f"error: {args.observations}: {exc}", file=sys.stderr)
-        return 2
-    out = _write_csv(df.rename(columns={"id": "patient"}), args.output, "%.8g")
-    print(f"inverted {df['id'].nunique()} patient(s) x {args.samples} samples -> {out}", file=sys.stderr)
-    return 0
+        result = invert_observations(obs, nets["flow"], nets["encoder_decoder"], nets["emulator"],
+                                     n_latent=args.samples, n_flow_samples=args.flow_samples, seed=args.seed,
+                                     reference_outputs=ref, n_reference=args.reference_size, progress=args.progress,
+                                     corrector_steps=args.corrector_steps, on_warning=warn)
+    except ValueError as exc:  # pragma: no cover - the checks above catch what it rejects
+        raise InputError(f"{path}: {_one_line(exc)}") from None
+    _write_csv(result.rename(columns={"id": "patient"}), out, "%.8g")
+    status = result.groupby("id", sort=False)["status"].first()
+    failed = status[status != "ok"]
+    msg = f"inverted {len(status) - len(failed)} of {len(status)} patient(s) x {args.samples} samples -> {out}"
+    if len(failed):
+        msg += f"; not inverted: line {_lines([line_of[p] for p in failed.index])} (see the status column)"
+    print(msg, file=sys.stderr)
+    return 1 if len(failed) else 0
+
+
+def _load_model(path: Path):
+    """A saved network; a file that is not one raises :class:`InputError`."""
+    import pickle
+
+    from .networks import load_model
+
+    try:
+        return load_model(path)
+    except (OSError, RuntimeError, ValueError, KeyError, EOFError, pickle.UnpicklingError) as exc:
+        raise InputError(f"{path}: not a cvsim6 model file ({type(exc).__name__}: {_one_line(exc)[:200]})") from None
+
+
+def _who(obs: pd.DataFrame, i: int, df: pd.DataFrame) -> str:
+    return f" (patient {obs.index[i]})" if "patient" in df.columns else ""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -117,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--method", choices=("batch", "reference"), default="batch",
                      help="batch: fast fixed-step SDIRK (default); reference: scipy Radau, slow")
     sim.add_argument("--steps-per-cycle", type=int, default=600,
-                     help="time steps per cardiac cycle of the batch solver (default 600)")
+                     help="time steps per cardiac cycle of the batch solver (default 600, at least 20)")
     sim.add_argument("--progress", action="store_true", help="show a progress bar")
     sim.set_defaults(func=_simulate)
     inv = sub.add_parser("invert", help="infer parameter sets of patients from (partial) observations")
@@ -129,12 +312,15 @@ def build_parser() -> argparse.ArgumentParser:
     inv.add_argument("--samples", type=int, default=100, help="latent draws per patient (default 100)")
     inv.add_argument("--flow-samples", type=int, default=200_000,
                      help="flow samples ranked to complete missing outputs (paper: 5.1 million)")
-    inv.add_argument("--reference", help="Parquet split of simulated data for the OOD percentile "
-                                          "(default: samples of the flow)")
-    inv.add_argument("--reference-size", type=int, default=100, help="reference rows for the OOD percentile")
-    inv.add_argument("--corrector-steps", type=int, default=2,
-                     help="predictor-corrector rounds when decoding (default 2, as the paper's code; 0 = off)")
-    inv.add_argument("--seed", type=int, default=0)
+    inv.add_argument("--reference", help="Parquet split of simulated data for the OOD percentile and the "
+                                          "training range (default: samples of the flow)")
+    inv.add_argument("--reference-size", type=int, default=1000,
+                     help="reference rows for the OOD percentile (default 1000: resolution 0.1 points)")
+    inv.add_argument("--corrector-steps", type=int, default=DEFAULT_CORRECTOR_STEPS,
+                     help=f"predictor-corrector rounds when decoding (default {DEFAULT_CORRECTOR_STEPS}, "
+                          "as the paper's code; 0 = off)")
+    inv.add_argument("--seed", type=int, default=0,
+                     help="seed of every random draw: completions, latent draws, OOD reference")
     inv.add_argument("--progress", action="store_true", help="show a progress bar")
     inv.set_defaults(func=_invert)
     return parser
@@ -143,7 +329,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except InputError as exc:
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -11,13 +11,17 @@ The error of output k at noise level delta is (paper eq. 9)
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from . import inversion
-from .registry import OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES, noise_std
+from .model import outside_domain
+from .networks import DEFAULT_CORRECTOR_STEPS
+from .registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES, noise_std
+from .solver import STATUS_REASONS, unphysical
 
 log = logging.getLogger(__name__)
 
@@ -36,62 +40,217 @@ PAPER_DELTAS = (0.25, 0.5, 1.0, 2.0)
 PRED = "pred_"  # prefix of emulated-output columns (Hr is both a parameter and an output)
 
 
+#: Values of each output that are possible at all, in its registry unit: ``(low, high)``
+#: (inclusive). A value outside is taken for a unit mistake and rejected before anything
+#: is computed. PVR's unit cannot be told by its value (a tiny transpulmonary gradient
+#: gives a few dyn·s/cm^5), so only its sign is checked.
+PLAUSIBLE_RANGE = {
+    "Hr": (10.0, 400.0), **{n: (-50.0, 400.0) for n in OUTPUT_NAMES if n.startswith("P_")},
+    "V_l_sys": (2.0, 1000.0), "V_l_dia": (2.0, 1000.0), "LVEF": (0.0, 1.0), "CO": (0.1, 50.0),
+    "SVR": (50.0, 10_000.0), "PVR": (0.0, 3000.0),
+}
+#: The likely mistake when a value falls in ``(low, high]``: ``[(low, high, hint), ...]``.
+UNIT_HINTS = {
+    "Hr": [(0.0, 10.0, "beats per second? (Hr is in beats per minute)")],
+    "LVEF": [(1.0, 100.0, "percent?")],
+    "CO": [(50.0, 50_000.0, "mL/min?")],
+    "SVR": [(0.0, 50.0, "Wood units (mmHg·min/L)? 1 WU = 80 dyn·s/cm^5")],
+    "V_l_sys": [(0.0, 2.0, "litres?")], "V_l_dia": [(0.0, 2.0, "litres?")],
+    **{n: [(400.0, 400.0 * 133.4, "Pa? (1 mmHg = 133.3 Pa)")] for n in OUTPUT_NAMES if n.startswith("P_")},
+}
+#: An observation is *outside the training range* beyond the range of the reference
+#: outputs (simulated, or flow samples) widened by this fraction of its width on each side.
+TRAINING_RANGE_MARGIN = 0.1
+#: Flow samples drawn (from ``seed``) as the reference when no simulated outputs are given.
+REFERENCE_FLOW_DRAWS = 2000
+
+
+def unit_problem(name: str, value: float) -> tuple[str, str] | None:
+    """``(expectation, hint)`` when ``value`` of output ``name`` is impossible in its unit
+    (e.g. ``("LVEF is a fraction (0-1)", "percent?")``), else None. NaN (missing) is fine."""
+    if np.isnan(value):
+        return None
+    lo, hi = PLAUSIBLE_RANGE[name]
+    if lo <= value <= hi:
+        return None
+    if name == "LVEF":
+        expect = "LVEF is a fraction (0-1)"
+    else:
+        expect = f"{name} is in {OUTPUT_BY_NAME[name].unit} ({lo:g} to {hi:g})"
+    hint = next((h for a, b, h in UNIT_HINTS.get(name, []) if a < value <= b), "")
+    return expect, hint
+
+
+def unit_problems(observations: pd.DataFrame) -> list[tuple[int, str, float, str, str]]:
+    """Every cell of ``observations`` (numeric output columns) impossible in its unit:
+    ``(row position, column, value, expectation, hint)``, row by row."""
+    found = []
+    cols = [c for c in OUTPUT_NAMES if c in observations.columns]
+    values = observations[cols].to_numpy(float)
+    for i, j in zip(*np.nonzero(~np.isnan(values))):
+        p = unit_problem(cols[j], float(values[i, j]))
+        if p is not None:
+            found.append((int(i), cols[j], float(values[i, j]), *p))
+    return sorted(found, key=lambda t: (t[0], OUTPUT_NAMES.index(t[1])))
+
+
+def unit_message(problems: list, where: str) -> str:
+    """One line for the first of ``problems`` (from :func:`unit_problems`), ``where`` naming
+    its row, e.g. ``"LVEF is a fraction (0-1); got 55 in line 3: percent? (2 values of LVEF)"``."""
+    _, name, value, expect, hint = problems[0]
+    n = sum(1 for p in problems if p[1] == name)
+    more = f" ({n} such values of {name})" if n > 1 else ""
+    return f"{expect}; got {value:g} in {where}" + (f": {hint}" if hint else "") + more
+
+
+def training_range(reference_outputs: np.ndarray, margin: float = TRAINING_RANGE_MARGIN):
+    """Per output ``(low, high)``: the range of the finite reference rows widened by
+    ``margin`` times its width on each side (registry units)."""
+    ref = np.asarray(reference_outputs, float)
+    ref = ref[np.isfinite(ref).all(axis=1)]
+    if len(ref) == 0:
+        raise ValueError("the reference outputs have no finite row")
+    lo, hi = ref.min(axis=0), ref.max(axis=0)
+    pad = margin * (hi - lo)
+    return lo - pad, hi + pad
+
+
+def _report(pid, message: str) -> None:
+    log.warning("patient %r: %s", pid, message)
+
+
 def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_latent: int = 100,
                         n_flow_samples: int = 200_000, seed: int = 0,
                         reference_outputs: np.ndarray | None = None, n_reference: int = 100,
                         reference_flow_samples: int = 4096, progress: bool = False,
-                        corrector_steps: int = 0) -> pd.DataFrame:
+                        corrector_steps: int = DEFAULT_CORRECTOR_STEPS,
+                        on_warning: Callable[[object, str], None] | None = None) -> pd.DataFrame:
     """Invert each row of ``observations`` (any subset of the 16 output columns, NaN = missing).
 
-    Returns a long table: one row per observation and latent draw with ``id`` (the
-    observation's index), ``draw``, the 23 parameters, the 16 emulated outputs
-    (``pred_<name>``), the completion used (``completed_<name>``), ``log_density`` of
-    that completion and ``ood_percentile`` (NaN without ``reference_outputs``).
+    Returns a long table, one row per observation and latent draw: ``id`` (the
+    observation's index), ``status`` (``"ok"``, or ``"not inverted: <reason>"`` with a
+    single row and no parameters), ``draw``, the 23 parameters, ``draw_status`` and
+    ``outside_domain`` of each decoded set (:data:`cvsim6.solver.STATUS_REASONS` 7 and 8:
+    a set the simulator cannot take, or an unphysical one), the 16 emulated outputs
+    (``pred_<name>``), the completion used (``completed_<name>``), its ``log_density``,
+    ``ood_percentile`` (percentage of ``ood_reference_size`` reference outputs less likely
+    than the observation; resolution 100/size %), and ``outside_training`` (the observed
+    outputs beyond the training range, ``;``-separated: their inversion extrapolates).
+
+    ``reference_outputs`` (N, 16): simulated outputs for the OOD percentile (``n_reference``
+    rows drawn with ``seed``) and the training range (all rows); None draws
+    :data:`REFERENCE_FLOW_DRAWS` flow samples with ``seed`` instead. Every observation is
+    ranked against the same reference rows. A row that cannot be inverted does not stop
+    the others; each problem is passed to ``on_warning(id, message)`` (default: logged).
+    Raises ValueError before computing anything for an unknown column, a value that is
+    not a number, or one impossible in its unit (:func:`unit_problem`).
     ``corrector_steps``: predictor-corrector rounds of :func:`cvsim6.inversion.decode_latent`.
     """
+    warn = on_warning or _report
     unknown = [c for c in observations.columns if c not in OUTPUT_NAMES]
     if unknown:
         raise ValueError(f"unknown output column(s) {unknown}; expected any of {list(OUTPUT_NAMES)}")
-    obs = observations.reindex(columns=list(OUTPUT_NAMES)).astype(float)
+    if len(observations) == 0:
+        raise ValueError("no observations to invert (the table has no rows)")
+    for name, value in (("n_latent", n_latent), ("n_flow_samples", n_flow_samples), ("n_reference", n_reference),
+                        ("reference_flow_samples", reference_flow_samples)):
+        if int(value) < 1:
+            raise ValueError(f"{name} = {value} must be >= 1")
+    obs = observations.reindex(columns=list(OUTPUT_NAMES))
+    num = obs.apply(pd.to_numeric, errors="coerce")
+    text = obs.notna() & num.isna()
+    if text.any().any():
+        i, j = np.argwhere(text.to_numpy())[0]
+        raise ValueError(f"observation {obs.index[i]!r}: {OUTPUT_NAMES[j]} = {obs.iat[i, j]!r} is not a number")
+    obs = num.astype(float)
+    bad = unit_problems(obs)
+    if bad:
+        raise ValueError(unit_message(bad, f"observation {obs.index[bad[0][0]]!r}"))
+    if reference_outputs is None:
+        gen = inversion._generator(np.random.SeedSequence([int(seed), 1]).generate_state(1)[0])
+        ref = flow.sample_physical(REFERENCE_FLOW_DRAWS, generator=gen)
+    else:
+        ref = np.asarray(reference_outputs, float)
+    ref = ref[np.isfinite(ref).all(axis=1)]
+    lo, hi = training_range(ref)
+    pick = ref[np.random.default_rng(seed).choice(len(ref), size=min(int(n_reference), len(ref)), replace=False)]
+    ref_scores: dict[bytes, np.ndarray] = {}  # per missing pattern: the same for every observation
+
     rows = []
     it = obs.iterrows()
     if progress:
         from tqdm import tqdm
 
         it = tqdm(it, total=len(obs), unit="patient", desc="invert")
-    ref_rng = np.random.default_rng(seed)
     for k, (pid, y) in enumerate(it):
         y = y.to_numpy()
-        if not np.isfinite(y).any():
-            raise ValueError(f"observation {pid!r}: no output given")
+        seen = np.isfinite(y)
+        outside = [n for j, n in enumerate(OUTPUT_NAMES) if seen[j] and not lo[j] <= y[j] <= hi[j]]
+        for n in outside:
+            j = OUTPUT_INDEX[n]
+            unit = OUTPUT_BY_NAME[n].unit
+            warn(pid, f"{n} = {y[j]:g} {unit} is far outside the training range [{lo[j]:.4g}, {hi[j]:.4g}] "
+                      f"{unit}: its inversion extrapolates")
+        if not seen.any():
+            rows.append(_not_inverted(pid, "no output given", outside))
+            warn(pid, "not inverted: no output given")
+            continue
         best, lp = inversion.complete_missing(flow, y, n_flow_samples, top_k=1, seed=seed + 7919 * k)
+        if not np.isfinite(lp[0]) or not np.isfinite(best).all():
+            why = f"no finite completion under the flow among {n_flow_samples} samples"
+            rows.append(_not_inverted(pid, why, outside))
+            warn(pid, f"not inverted: {why}")
+            continue
         v = inversion.decode_latent(encdec, best, n_latent, seed=seed + 104729 * k,
                                     corrector_steps=corrector_steps)[0]
         yhat = np.asarray(emulator.predict(v))
-        pct = np.nan
-        if reference_outputs is not None:
-            ref = np.asarray(reference_outputs, float)
-            pick = ref[ref_rng.choice(len(ref), size=min(n_reference, len(ref)), replace=False)]
-            scores = inversion.reference_scores(flow, pick, ~np.isfinite(y), reference_flow_samples, seed=seed + k)
-            pct = inversion.ood_percentile(lp[0], scores)
+        key = (~seen).tobytes()
+        if key not in ref_scores:
+            ref_scores[key] = inversion.reference_scores(flow, pick, ~seen, reference_flow_samples, seed=seed)
+        scores = ref_scores[key]
+        dom = outside_domain(v)
+        draw_status = np.where(dom, STATUS_REASONS[7], np.where(unphysical(v), STATUS_REASONS[8], "ok"))
+        if dom.any():
+            warn(pid, f"{int(dom.sum())} of {n_latent} decoded parameter sets are outside the model's domain "
+                      "(see outside_domain)")
         df = pd.DataFrame(v, columns=list(PARAMETER_NAMES))
         df.insert(0, "draw", np.arange(n_latent))
+        df.insert(0, "status", "ok")
         df.insert(0, "id", pid)
+        df["draw_status"] = draw_status
+        df["outside_domain"] = dom
         for j, name in enumerate(OUTPUT_NAMES):
             df[PRED + name] = yhat[:, j]
         for j, name in enumerate(OUTPUT_NAMES):
             df["completed_" + name] = best[0, j]
         df["log_density"] = lp[0]
-        df["ood_percentile"] = pct
+        df["ood_percentile"] = inversion.ood_percentile(lp[0], scores)
+        df["ood_reference_size"] = int(np.isfinite(scores).sum())
+        df["outside_training"] = ";".join(outside)
         rows.append(df)
-    return pd.concat(rows, ignore_index=True)
+    out = pd.concat(rows, ignore_index=True)[_COLUMNS]
+    return out.astype({"draw": "Int64", "outside_domain": "boolean", "ood_reference_size": "Int64"})
+
+
+_COLUMNS = (["id", "status", "draw", *PARAMETER_NAMES, "draw_status", "outside_domain"]
+            + [PRED + n for n in OUTPUT_NAMES] + ["completed_" + n for n in OUTPUT_NAMES]
+            + ["log_density", "ood_percentile", "ood_reference_size", "outside_training"])
+
+
+def _not_inverted(pid, reason: str, outside: list[str]) -> pd.DataFrame:
+    """The single row of an observation that could not be inverted."""
+    row = {c: np.nan for c in _COLUMNS}
+    row.update(id=pid, status=f"not inverted: {reason}", draw=pd.NA, draw_status="", outside_domain=pd.NA,
+               ood_reference_size=pd.NA, outside_training=";".join(outside))
+    return pd.DataFrame([row], columns=_COLUMNS)
 
 
 def invert_ehr_patients(patients: str, flow: str, encoder_decoder: str, emulator: str, reference: str,
                         predictions: str, noise_level: float, n_latent: int, n_flow_samples: int,
                         n_reference: int, reference_flow_samples: int, seed: int,
-                        corrector_steps: int = 0) -> None:
-    """Workflow step: invert the selected EHR patients with the networks of one noise level."""
+                        corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
+    """Workflow step: invert the selected EHR patients with the networks of one noise level
+    (a patient that cannot be inverted is logged and kept with its reason in ``status``)."""
     from .datasets import load_split
     from .networks import load_model
 
@@ -105,18 +264,22 @@ def invert_ehr_patients(patients: str, flow: str, encoder_decoder: str, emulator
     df.insert(1, "noise_level", float(noise_level))
     Path(predictions).parent.mkdir(parents=True, exist_ok=True)
     df.to_parquet(predictions, index=False)
-    log.info("delta=%g: %d patients inverted", noise_level, df["id"].nunique())
+    per = df.groupby("id", sort=False)["status"].first()
+    log.info("delta=%g: %d of %d patients inverted", noise_level, int((per == "ok").sum()), len(per))
 
 
 def error_per_output(observations: pd.DataFrame, predictions: pd.DataFrame) -> pd.DataFrame:
-    """e_k and counts per output: mean over observed patients of mean_i |y_k - Y_ik|."""
+    """e_k and counts per output: mean over observed patients of mean_i |y_k - Y_ik|
+    (a patient without predictions, e.g. not inverted, is left out of e_k)."""
     rows = []
     for name in OUTPUT_NAMES:
         obs = observations[name].dropna()
         errs = []
         for pid, yk in obs.items():
-            pred = predictions.loc[predictions["id"] == pid, PRED + name].to_numpy()
-            errs.append(np.abs(yk - pred).mean())
+            pred = predictions.loc[predictions["id"] == pid, PRED + name].to_numpy(float)
+            pred = pred[np.isfinite(pred)]
+            if len(pred):
+                errs.append(np.abs(yk - pred).mean())
         rows.append({"output": name, "e_k": float(np.mean(errs)) if errs else np.nan,
                      "count": len(obs), "patients": len(observations)})
     return pd.DataFrame(rows).set_index("output")
@@ -184,12 +347,18 @@ def ehr_patient_figure(patients: str, predictions: str, figure: str) -> None:
 
 
 def ood_table(predictions: str, csv: str, md: str) -> None:
-    """Per patient: log-density of the best completion and its OOD percentile."""
+    """Per patient: log-density of the best completion, its OOD percentile, the reference
+    size it was ranked in (resolution 100/size %), the outputs beyond the training range."""
     from .tables import write_table
 
     pred = pd.read_parquet(predictions)
-    per = pred.groupby("id")[["log_density", "ood_percentile"]].first().reset_index()
+    cols = [c for c in ("status", "log_density", "ood_percentile", "ood_reference_size", "outside_training")
+            if c in pred.columns]
+    per = pred.groupby("id")[cols].first().reset_index()
     per["flag (< 1st percentile)"] = per["ood_percentile"] < 1.0
+    sizes = per["ood_reference_size"].dropna().unique() if "ood_reference_size" in per else []
+    among = (f" {int(sizes[0]):,} simulated outputs (resolution {100 / sizes[0]:.2g} percentage points)"
+             if len(sizes) == 1 else " simulated outputs")
     write_table(per.rename(columns={"id": "patient"}), csv, md,
                 caption="Out-of-distribution score per patient: percentile of the flow log-density of "
-                        "its best completion among simulated outputs with the same entries missing")
+                        f"its best completion among{among} with the same entries missing")

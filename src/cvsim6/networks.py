@@ -38,6 +38,9 @@ from .registry import N_OUTPUTS, N_PARAMETERS
 
 #: Version tag stored in every saved model file.
 FORMAT = "cvsim6-invaert/1"
+#: Predictor-corrector rounds when decoding (:meth:`EncoderDecoder.invert`): the paper's
+#: code uses 2. The one default of the library, the CLI and the workflow's functions.
+DEFAULT_CORRECTOR_STEPS = 2
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {
     "silu": nn.SiLU, "tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU, "elu": nn.ELU,
@@ -361,7 +364,7 @@ class EncoderDecoder(nn.Module):
         return self.decode(y_std, w), mu, logvar
 
     @torch.no_grad()
-    def invert(self, y, w, corrector_steps: int = 0):
+    def invert(self, y, w, corrector_steps: int = DEFAULT_CORRECTOR_STEPS):
         """Physical outputs (N, 16) and latent w (N, latent) -> physical parameters (N, 23).
 
         ``corrector_steps`` rounds of predictor-corrector sampling (inVAErt, Tong et al. 2024,

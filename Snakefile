@@ -61,6 +61,12 @@ rule all:
         rules.structural_manifold_svd.output,
         rules.structural_missing_data.output,
         rules.structural_jacobian.output,
-        expand(rules.ehr_ood_table.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
-        expand(rules.ehr_patient_figure.output, delta=noise_tag(config["ehr_study"]["figure_noise_level"])),
+        expand(
+            rules.ehr_ood_table.output,
+            delta=noise_tag(config["ehr_study"]["figure_noise_level"]),
+        ),
+        expand(
+            rules.ehr_patient_figure.output,
+            delta=noise_tag(config["ehr_study"]["figure_noise_level"]),
+        ),
         rules.reproduction_scorecard.output,

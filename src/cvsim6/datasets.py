@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from . import __version__, priors, solver
+from .plots import histogram_grid
 from .registry import OUTPUT_BY_NAME, OUTPUT_NAMES, PARAMETER_BY_NAME, PARAMETER_NAMES
 
 log = logging.getLogger(__name__)
@@ -226,8 +227,6 @@ def gather_study(
 def plot_histograms(train: str, test: str, validation: str, outputs_figure: str, inputs_figure: str,
                     study: str) -> None:
     """Histograms of the 16 outputs and the 23 inputs over all rows of a study."""
-    from .plots import histogram_grid
-
     df = pd.concat([read_dataset(p) for p in (train, test, validation)], ignore_index=True)
     histogram_grid(df, OUTPUT_NAMES, outputs_figure, title=f"{study} study: outputs ({len(df):,} sets)")
     histogram_grid(df, PARAMETER_NAMES, inputs_figure, title=f"{study} study: inputs ({len(df):,} sets)")

@@ -16,6 +16,7 @@ import pandas as pd
 
 from .downloads import download_checked
 from .registry import OUTPUT_NAMES
+from .tables import write_table
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +107,6 @@ def write_patient_selection(csv: str, patients: str, counts_csv: str, counts_md:
     ``patients`` (CSV): one row per selected patient with its outputs; ``md``: counts
     per output over the selected patients (the paper's 'Counts' column), CSV and Markdown.
     """
-    from .tables import write_table
-
     out = ehr_outputs(csv)
     sel = select_patients(out)
     Path(patients).parent.mkdir(parents=True, exist_ok=True)

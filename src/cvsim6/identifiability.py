@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .registry import noise_std
+from .solver import simulate_batch
 
 
 def cumulative_energy(singular_values: np.ndarray) -> np.ndarray:
@@ -115,8 +116,6 @@ def local_identifiability(Js: np.ndarray, rtol: float = 1e-3):
 def simulator_outputs(steps_per_cycle: int = 600) -> Callable[[np.ndarray], np.ndarray]:
     """``f(v) -> y`` on the batch path (NaN rows where the simulator flags a set or a set
     lies outside the model's domain, e.g. a finite-difference step past a bound)."""
-    from .solver import simulate_batch
-
     def f(v: np.ndarray) -> np.ndarray:
         out, st = simulate_batch(v, steps_per_cycle=steps_per_cycle, invalid="flag")
         out[st != 0] = np.nan

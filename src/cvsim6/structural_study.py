@@ -14,7 +14,10 @@ import pandas as pd
 
 from . import datasets, evaluation, identifiability, inversion, paper_values, priors, solver
 from .model import outside_domain
+from .networks import load_model
+from .plots import save_figure
 from .registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
+from .tables import write_table
 
 log = logging.getLogger(__name__)
 
@@ -47,9 +50,6 @@ def inversion_table(encoder_decoder: str, validation: str, csv: str, summary: st
                     corrector_steps: int = 0) -> None:
     """Table 3: decoder on the validation outputs (one w each, ``corrector_steps`` rounds of
     predictor-corrector sampling), pushed through the simulator."""
-    from .networks import load_model
-    from .tables import write_table
-
     ed = load_model(encoder_decoder)
     _, y = datasets.load_split(validation)
     v = inversion.decode_latent(ed, y, 1, seed=seed, corrector_steps=corrector_steps)[:, 0]
@@ -65,9 +65,6 @@ def inversion_table(encoder_decoder: str, validation: str, csv: str, summary: st
 
 def choose_observation(flow: str, csv: str, md: str, source: str, n_flow_samples: int, seed: int) -> None:
     """y*: the paper's table values, or the highest-density of ``n_flow_samples`` NN_f samples."""
-    from .networks import load_model
-    from .tables import write_table
-
     if source == "paper":
         y = np.array(paper_values.Y_STAR)
     else:
@@ -89,8 +86,6 @@ def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samp
                     corrector_steps: int = 0) -> None:
     """Decode y* with ``n_samples`` latent draws (``corrector_steps`` predictor-corrector
     rounds): parameter sets on the manifold M_y* (Parquet)."""
-    from .networks import load_model
-
     v = inversion.decode_latent(load_model(encoder_decoder), _y_star(observation)[None], n_samples, seed=seed,
                                 corrector_steps=corrector_steps)[0]
     datasets.write_dataset(pd.DataFrame(v, columns=list(PARAMETER_NAMES)), samples)
@@ -131,9 +126,6 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, summary: s
     against y* (paper: ~0.139%) and the four-panel trajectory figure (``n_traces`` traces)."""
     import matplotlib.pyplot as plt
 
-    from .plots import save_figure
-    from .tables import write_table
-
     v = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()[:n_reconstruct]
     y_star = _y_star(observation)
     yhat, st = _simulate(v, simulator)
@@ -166,8 +158,6 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, summary: s
 def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -> None:
     """Parallel-coordinate plot of the manifold, two rows, limits 5% beyond the prior bounds."""
     import matplotlib.pyplot as plt
-
-    from .plots import save_figure
 
     v, n_out = _manifold_samples(samples)
     v = v[:n_lines]
@@ -203,8 +193,6 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, summary: str, level
     """Singular values and cumulative energy of the manifold samples; modes reaching ``level``."""
     import matplotlib.pyplot as plt
 
-    from .plots import save_figure
-
     v, n_out = _manifold_samples(samples)
     s = identifiability.manifold_svd(v)
     ce = identifiability.cumulative_energy(s)
@@ -239,10 +227,6 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, su
     """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
     largest relative l2 error on the observed entries (paper: ~0.408%) and the trajectory figure."""
     import matplotlib.pyplot as plt
-
-    from .networks import load_model
-    from .plots import save_figure
-    from .tables import write_table
 
     y_star = _y_star(observation)
     y_obs = y_star.copy()
@@ -283,9 +267,6 @@ def jacobian_check(samples: str, csv: str, summary: str, md: str, figure: str, p
     """Local identifiability at manifold samples: scaled Jacobian spectra, ranks, and per
     parameter the spread over the manifold (fraction of the prior width) and null-space share."""
     import matplotlib.pyplot as plt
-
-    from .plots import save_figure
-    from .tables import write_table
 
     v_all, _ = _manifold_samples(samples)
     v = v_all[:n_points]

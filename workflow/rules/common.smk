@@ -3,7 +3,6 @@
 
 import importlib.util
 
-
 #: Everything the workflow produces (git-ignored except results/README.md).
 RESULTS = "results"
 #: Tables of the paper that do not depend on the networks (CSV + Markdown).
@@ -23,11 +22,15 @@ NETWORK_RESULTS = {"trained": RESULTS, "published": f"{RESULTS}/published"}
 NET = NETWORK_RESULTS[NETWORK_SOURCE]
 NET_TABLES = f"{NET}/tables"
 NET_LOGS = LOGS if NETWORK_SOURCE == "trained" else f"{LOGS}/published"
-NET_BENCHMARKS = BENCHMARKS if NETWORK_SOURCE == "trained" else f"{BENCHMARKS}/published"
+NET_BENCHMARKS = (
+    BENCHMARKS if NETWORK_SOURCE == "trained" else f"{BENCHMARKS}/published"
+)
 #: Networks the downstream rules read: trained into results/models, converted into results/published/models.
 MODELS = f"{NET}/models"
 
-_spec = importlib.util.spec_from_file_location("cvsim6_codegraph", f"{PACKAGE_DIR}/codegraph.py")
+_spec = importlib.util.spec_from_file_location(
+    "cvsim6_codegraph", f"{PACKAGE_DIR}/codegraph.py"
+)
 _codegraph = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_codegraph)
 
@@ -64,21 +67,55 @@ def model_files(study, root=MODELS):
     return dict(
         emulator=f"{root}/{study}/emulator.pt",
         flows=[f"{root}/{study}/flow_delta{d}.pt" for d in deltas],
-        encoder_decoders=[f"{root}/{study}/encoder_decoder_delta{d}.pt" for d in deltas],
+        encoder_decoders=[
+            f"{root}/{study}/encoder_decoder_delta{d}.pt" for d in deltas
+        ],
     )
 
 
 def network_targets(study):
     """Every network-dependent file of ``study`` for the config in use: the evaluation of
-    the networks and, when the workflow trains them, the training tables and loss curves."""
+    the networks and, when the workflow trains them, the training tables and loss curves.
+    """
     deltas = noise_tags(study)
     files = model_files(study)
-    targets = [files["emulator"], *files["flows"], *files["encoder_decoders"],
-               f"{NET_TABLES}/{study}_emulator_validation.md", f"{NET}/training/{study}/emulator_l2_errors.png"]
+    targets = [
+        files["emulator"],
+        *files["flows"],
+        *files["encoder_decoders"],
+        f"{NET_TABLES}/{study}_emulator_validation.md",
+        f"{NET}/training/{study}/emulator_l2_errors.png",
+    ]
     targets += [f"{NET}/training/{study}/flow_delta{d}_marginals.png" for d in deltas]
     if NETWORK_SOURCE == "trained":
-        targets += [f"{TABLES}/{study}_architectures.md", f"{TABLES}/{study}_schedules.md",
-                    f"{RESULTS}/training/{study}/emulator_losses.png"]
-        targets += [f"{RESULTS}/training/{study}/{stage}_delta{d}_losses.png"
-                    for d in deltas for stage in ("flow", "encoder_decoder")]
+        targets += [
+            f"{TABLES}/{study}_architectures.md",
+            f"{TABLES}/{study}_schedules.md",
+            f"{RESULTS}/training/{study}/emulator_losses.png",
+        ]
+        targets += [
+            f"{RESULTS}/training/{study}/{stage}_delta{d}_losses.png"
+            for d in deltas
+            for stage in ("flow", "encoder_decoder")
+        ]
     return targets
+
+
+def published_dir(wildcards=None):
+    """The published files: config networks.published.path if set, else the copy fetched into resources/."""
+    return config["networks"]["published"]["path"] or "resources/paper_networks"
+
+
+def scorecard_files(source):
+    """The workflow outputs the scorecard reads for one network source (cvsim6.scorecard.HEADLINE_FILES)."""
+    root = NETWORK_RESULTS[source]
+    return dict(
+        stiffness=f"{RESULTS}/stiffness/sr_extremes.csv",
+        structural_emulator=f"{root}/tables/structural_emulator_validation.csv",
+        structural_inversion=f"{root}/tables/structural_inversion_errors.csv",
+        manifold=f"{root}/tables/structural_manifold_reconstruction.json",
+        svd=f"{root}/structural/manifold_svd.json",
+        missing=f"{root}/tables/structural_missing_data.json",
+        ehr_emulator=f"{root}/training/ehr/emulator_l2_errors.json",
+        ehr_errors=f"{root}/tables/ehr_error_per_output.csv",
+    )

@@ -14,23 +14,25 @@ rule sample_prior:
         code=code_for("cvsim6.datasets:sample_prior"),
     output:
         parameters=f"{DATA}/{{study}}/parameters.parquet",
-        shards=scatter.simulate("results/data/{{study}}/shards/parameters_{scatteritem}.parquet"),
+        shards=scatter.simulate(
+            "results/data/{{study}}/shards/parameters_{scatteritem}.parquet"
+        ),
+    log:
+        f"{LOGS}/sample_prior/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/sample_prior/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
     params:
         function="cvsim6.datasets:sample_prior",
         prior=lambda w: config["data"]["studies"][w.study]["prior"],
         n_samples=lambda w: config["data"]["studies"][w.study]["n_samples"],
         seed=config["seed"],
         study=lambda w: w.study,
-    log:
-        f"{LOGS}/sample_prior/{{study}}.log",
-    benchmark:
-        f"{BENCHMARKS}/sample_prior/{{study}}.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -41,20 +43,20 @@ rule simulate_shard:
         parameters=f"{DATA}/{{study}}/shards/parameters_{{scatteritem}}.parquet",
     output:
         output=f"{DATA}/{{study}}/shards/simulated_{{scatteritem}}.parquet",
-    params:
-        function="cvsim6.datasets:simulate_shard",
-        shard=lambda w: w.scatteritem,
-        simulator=config["simulator"],
     log:
         f"{LOGS}/simulate_shard/{{study}}_{{scatteritem}}.log",
     benchmark:
         f"{BENCHMARKS}/simulate_shard/{{study}}_{{scatteritem}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1500,
         runtime=30,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.datasets:simulate_shard",
+        shard=lambda w: w.scatteritem,
+        simulator=config["simulator"],
     script:
         "../scripts/call.py"
 
@@ -62,13 +64,25 @@ rule simulate_shard:
 rule gather_study:
     input:
         code=code_for("cvsim6.datasets:gather_study"),
-        shards=gather.simulate("results/data/{{study}}/shards/simulated_{scatteritem}.parquet"),
+        shards=gather.simulate(
+            "results/data/{{study}}/shards/simulated_{scatteritem}.parquet"
+        ),
     output:
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
         validation=f"{DATA}/{{study}}/validation.parquet",
         failures=f"{DATA}/{{study}}/failures.csv",
         manifest=f"{DATA}/{{study}}/manifest.json",
+    log:
+        f"{LOGS}/gather_study/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/gather_study/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
     params:
         function="cvsim6.datasets:gather_study",
         study=lambda w: w.study,
@@ -77,16 +91,6 @@ rule gather_study:
         max_failure_fraction=config["data"]["max_failure_fraction"],
         seed=config["seed"],
         simulator=config["simulator"],
-    log:
-        f"{LOGS}/gather_study/{{study}}.log",
-    benchmark:
-        f"{BENCHMARKS}/gather_study/{{study}}.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -110,18 +114,18 @@ rule data_histograms:
             subcategory="{study}",
             caption="../report/data_inputs_histograms.rst",
         ),
-    params:
-        function="cvsim6.datasets:plot_histograms",
-        study=lambda w: w.study,
     log:
         f"{LOGS}/data_histograms/{{study}}.log",
     benchmark:
         f"{BENCHMARKS}/data_histograms/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.datasets:plot_histograms",
+        study=lambda w: w.study,
     script:
         "../scripts/call.py"

@@ -10,20 +10,20 @@ NET_EHR = f"{NET}/ehr"
 rule download_ehr:
     output:
         output="resources/EHR_dataset.csv",
-    params:
-        function="cvsim6.ehr:download_ehr",
-        url=config["ehr_data"]["url"],
-        sha256=config["ehr_data"]["sha256"],
     log:
         f"{LOGS}/download_ehr.log",
     benchmark:
         f"{BENCHMARKS}/download_ehr.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.ehr:download_ehr",
+        url=config["ehr_data"]["url"],
+        sha256=config["ehr_data"]["sha256"],
     script:
         "../scripts/call.py"
 
@@ -36,18 +36,18 @@ rule ehr_patients:
         patients=f"{EHR}/patients.csv",
         counts_csv=f"{EHR}/output_counts.csv",
         counts_md=f"{EHR}/output_counts.md",
-    params:
-        function="cvsim6.ehr:write_patient_selection",
     log:
         f"{LOGS}/ehr_patients.log",
     benchmark:
         f"{BENCHMARKS}/ehr_patients.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.ehr:write_patient_selection",
     script:
         "../scripts/call.py"
 
@@ -62,6 +62,16 @@ rule invert_ehr_patients:
         reference=f"{DATA}/ehr/validation.parquet",
     output:
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
+    log:
+        f"{NET_LOGS}/invert_ehr_patients/delta{{delta}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/invert_ehr_patients/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=120,
     params:
         function="cvsim6.ehr_study:invert_ehr_patients",
         noise_level=lambda w: float(w.delta),
@@ -71,16 +81,6 @@ rule invert_ehr_patients:
         reference_flow_samples=config["ehr_study"]["reference_flow_samples"],
         corrector_steps=config["ehr_study"]["corrector_steps"],
         seed=config["seed"],
-    log:
-        f"{NET_LOGS}/invert_ehr_patients/delta{{delta}}.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/invert_ehr_patients/delta{{delta}}.tsv"
-    threads: 1
-    resources:
-        mem_mb=4000,
-        runtime=120,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -96,18 +96,18 @@ rule ehr_error_table:
     output:
         csv=f"{NET_TABLES}/ehr_error_per_output.csv",
         md=f"{NET_TABLES}/ehr_error_per_output.md",
-    params:
-        function="cvsim6.ehr_study:ehr_error_table",
     log:
         f"{NET_LOGS}/ehr_error_table.log",
     benchmark:
         f"{NET_BENCHMARKS}/ehr_error_table.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.ehr_study:ehr_error_table",
     script:
         "../scripts/call.py"
 
@@ -119,18 +119,18 @@ rule ehr_ood_table:
     output:
         csv=f"{NET_TABLES}/ehr_ood_delta{{delta}}.csv",
         md=f"{NET_TABLES}/ehr_ood_delta{{delta}}.md",
-    params:
-        function="cvsim6.ehr_study:ood_table",
     log:
         f"{NET_LOGS}/ehr_ood_table/delta{{delta}}.log",
     benchmark:
         f"{NET_BENCHMARKS}/ehr_ood_table/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.ehr_study:ood_table",
     script:
         "../scripts/call.py"
 
@@ -146,17 +146,17 @@ rule ehr_patient_figure:
             category="EHR study",
             caption="../report/ehr_patient_figure.rst",
         ),
-    params:
-        function="cvsim6.ehr_study:ehr_patient_figure",
     log:
         f"{NET_LOGS}/ehr_patient_figure/delta{{delta}}.log",
     benchmark:
         f"{NET_BENCHMARKS}/ehr_patient_figure/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.ehr_study:ehr_patient_figure",
     script:
         "../scripts/call.py"

@@ -6,19 +6,23 @@ rule input_parameter_table:
         code=code_for("cvsim6.tables:write_input_table"),
     output:
         csv=f"{TABLES}/input_parameters.csv",
-        md=report(f"{TABLES}/input_parameters.md", category="Model", caption="../report/input_parameters.rst"),
-    params:
-        function="cvsim6.tables:write_input_table",
+        md=report(
+            f"{TABLES}/input_parameters.md",
+            category="Model",
+            caption="../report/input_parameters.rst",
+        ),
     log:
         f"{LOGS}/input_parameter_table.log",
     benchmark:
         f"{BENCHMARKS}/input_parameter_table.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.tables:write_input_table",
     script:
         "../scripts/call.py"
 
@@ -28,18 +32,22 @@ rule output_parameter_table:
         code=code_for("cvsim6.tables:write_output_table"),
     output:
         csv=f"{TABLES}/output_parameters.csv",
-        md=report(f"{TABLES}/output_parameters.md", category="Model", caption="../report/output_parameters.rst"),
-    params:
-        function="cvsim6.tables:write_output_table",
+        md=report(
+            f"{TABLES}/output_parameters.md",
+            category="Model",
+            caption="../report/output_parameters.rst",
+        ),
     log:
         f"{LOGS}/output_parameter_table.log",
     benchmark:
         f"{BENCHMARKS}/output_parameter_table.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.tables:write_output_table",
     script:
         "../scripts/call.py"

@@ -6,27 +6,22 @@
 PUBLISHED_MODELS = f"{NETWORK_RESULTS['published']}/models"
 
 
-def published_dir(wildcards=None):
-    """The published files: config networks.published.path if set, else the copy fetched into resources/."""
-    return config["networks"]["published"]["path"] or "resources/paper_networks"
-
-
 rule fetch_published_networks:
     output:
         directory=directory("resources/paper_networks"),
-    params:
-        function="cvsim6.published:fetch_published_networks",
-        base_url=config["networks"]["published"]["url"],
     log:
         f"{LOGS}/fetch_published_networks.log",
     benchmark:
         f"{BENCHMARKS}/fetch_published_networks.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.published:fetch_published_networks",
+        base_url=config["networks"]["published"]["url"],
     script:
         "../scripts/call.py"
 
@@ -41,19 +36,19 @@ for _study in STUDIES:
             directory=published_dir,
         output:
             **model_files(_study, PUBLISHED_MODELS),
-        params:
-            function="cvsim6.published:convert_published_study",
-            study=_study,
-            noise_levels=config["training"]["studies"][_study]["noise_levels"],
         log:
             f"{LOGS}/published/convert_published/{_study}.log",
         benchmark:
             f"{BENCHMARKS}/published/convert_published/{_study}.tsv"
+        conda:
+            "../envs/cvsim6.yaml"
         threads: 1
         resources:
             mem_mb=1000,
             runtime=5,
-        conda:
-            "../envs/cvsim6.yaml"
+        params:
+            function="cvsim6.published:convert_published_study",
+            study=_study,
+            noise_levels=config["training"]["studies"][_study]["noise_levels"],
         script:
             "../scripts/call.py"

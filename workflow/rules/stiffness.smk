@@ -11,22 +11,22 @@ rule stiffness_eigen:
     output:
         eigenvalues=f"{STIFFNESS}/eigenvalues.csv",
         trajectory=f"{STIFFNESS}/trajectory.csv",
+    log:
+        f"{LOGS}/stiffness_eigen.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_eigen.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
     params:
         function="cvsim6.stiffness:eigen_analysis",
         rtol=config["stiffness"]["rtol"],
         samples_per_cycle=config["stiffness"]["samples_per_cycle"],
         zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
         sr_tol=config["stiffness"]["sr_tol"],
-    log:
-        f"{LOGS}/stiffness_eigen.log",
-    benchmark:
-        f"{BENCHMARKS}/stiffness_eigen.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -39,21 +39,25 @@ rule stiffness_extremes:
     output:
         eigenvectors=f"{STIFFNESS}/eigenvectors_sr_extremes.csv",
         csv=f"{STIFFNESS}/sr_extremes.csv",
-        md=report(f"{STIFFNESS}/sr_extremes.md", category="Stiffness", caption="../report/stiffness_extremes.rst"),
-    params:
-        function="cvsim6.stiffness:extremes",
-        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
-        sr_tol=config["stiffness"]["sr_tol"],
+        md=report(
+            f"{STIFFNESS}/sr_extremes.md",
+            category="Stiffness",
+            caption="../report/stiffness_extremes.rst",
+        ),
     log:
         f"{LOGS}/stiffness_extremes.log",
     benchmark:
         f"{BENCHMARKS}/stiffness_extremes.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=500,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.stiffness:extremes",
+        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
+        sr_tol=config["stiffness"]["sr_tol"],
     script:
         "../scripts/call.py"
 
@@ -63,21 +67,25 @@ rule stiffness_eigenvalue_figure:
         code=code_for("cvsim6.stiffness_plots:eigenvalue_figure"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
     output:
-        png=report(f"{STIFFNESS}/eigenvalues.png", category="Stiffness", caption="../report/stiffness_eigenvalues.rst"),
+        png=report(
+            f"{STIFFNESS}/eigenvalues.png",
+            category="Stiffness",
+            caption="../report/stiffness_eigenvalues.rst",
+        ),
         pdf=f"{STIFFNESS}/eigenvalues.pdf",
-    params:
-        function="cvsim6.stiffness_plots:eigenvalue_figure",
-        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
     log:
         f"{LOGS}/stiffness_eigenvalue_figure.log",
     benchmark:
         f"{BENCHMARKS}/stiffness_eigenvalue_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.stiffness_plots:eigenvalue_figure",
+        zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
     script:
         "../scripts/call.py"
 
@@ -88,24 +96,26 @@ rule stiffness_radar_figure:
         eigenvectors=rules.stiffness_extremes.output.eigenvectors,
     output:
         png=report(
-            f"{STIFFNESS}/radar_sr_{{extreme}}.png", category="Stiffness", caption="../report/stiffness_radar.rst"
+            f"{STIFFNESS}/radar_sr_{{extreme}}.png",
+            category="Stiffness",
+            caption="../report/stiffness_radar.rst",
         ),
         pdf=f"{STIFFNESS}/radar_sr_{{extreme}}.pdf",
-    wildcard_constraints:
-        extreme="max|min",
-    params:
-        function="cvsim6.stiffness_plots:radar_figure",
-        instant=lambda wildcards: f"SR {wildcards.extreme}",
     log:
         f"{LOGS}/stiffness_radar_figure_{{extreme}}.log",
     benchmark:
         f"{BENCHMARKS}/stiffness_radar_figure_{{extreme}}.tsv"
+    wildcard_constraints:
+        extreme="max|min",
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.stiffness_plots:radar_figure",
+        instant=lambda wildcards: f"SR {wildcards.extreme}",
     script:
         "../scripts/call.py"
 
@@ -116,20 +126,24 @@ rule stiffness_sr_figure:
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
         trajectory=rules.stiffness_eigen.output.trajectory,
     output:
-        png=report(f"{STIFFNESS}/sr_dynamics.png", category="Stiffness", caption="../report/stiffness_sr_dynamics.rst"),
+        png=report(
+            f"{STIFFNESS}/sr_dynamics.png",
+            category="Stiffness",
+            caption="../report/stiffness_sr_dynamics.rst",
+        ),
         pdf=f"{STIFFNESS}/sr_dynamics.pdf",
-    params:
-        function="cvsim6.stiffness_plots:sr_dynamics_figure",
     log:
         f"{LOGS}/stiffness_sr_figure.log",
     benchmark:
         f"{BENCHMARKS}/stiffness_sr_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.stiffness_plots:sr_dynamics_figure",
     script:
         "../scripts/call.py"
 
@@ -140,22 +154,26 @@ rule stiffness_rk4:
     output:
         series=f"{STIFFNESS}/rk4_series.csv",
         csv=f"{STIFFNESS}/rk4_errors.csv",
-        md=report(f"{STIFFNESS}/rk4_errors.md", category="Stiffness", caption="../report/stiffness_rk4_table.rst"),
+        md=report(
+            f"{STIFFNESS}/rk4_errors.md",
+            category="Stiffness",
+            caption="../report/stiffness_rk4_table.rst",
+        ),
+    log:
+        f"{LOGS}/stiffness_rk4.log",
+    benchmark:
+        f"{BENCHMARKS}/stiffness_rk4.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
     params:
         function="cvsim6.stiffness:rk4_study",
         rtol=config["stiffness"]["rtol"],
         rk4_steps=config["stiffness"]["rk4_steps"],
         samples_per_cycle=config["stiffness"]["samples_per_cycle"],
-    log:
-        f"{LOGS}/stiffness_rk4.log",
-    benchmark:
-        f"{BENCHMARKS}/stiffness_rk4.tsv"
-    threads: 1
-    resources:
-        mem_mb=1000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -165,19 +183,23 @@ rule stiffness_rk4_figure:
         code=code_for("cvsim6.stiffness_plots:rk4_figure"),
         series=rules.stiffness_rk4.output.series,
     output:
-        png=report(f"{STIFFNESS}/rk4.png", category="Stiffness", caption="../report/stiffness_rk4.rst"),
+        png=report(
+            f"{STIFFNESS}/rk4.png",
+            category="Stiffness",
+            caption="../report/stiffness_rk4.rst",
+        ),
         pdf=f"{STIFFNESS}/rk4.pdf",
-    params:
-        function="cvsim6.stiffness_plots:rk4_figure",
     log:
         f"{LOGS}/stiffness_rk4_figure.log",
     benchmark:
         f"{BENCHMARKS}/stiffness_rk4_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.stiffness_plots:rk4_figure",
     script:
         "../scripts/call.py"

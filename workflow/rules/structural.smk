@@ -15,21 +15,21 @@ rule structural_inversion_table:
         csv=f"{NET_TABLES}/structural_inversion_errors.csv",
         summary=f"{NET_TABLES}/structural_inversion_errors.json",
         md=f"{NET_TABLES}/structural_inversion_errors.md",
+    log:
+        f"{NET_LOGS}/structural_inversion_table.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_inversion_table.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
     params:
         function="cvsim6.structural_study:inversion_table",
         simulator=config["simulator"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
-    log:
-        f"{NET_LOGS}/structural_inversion_table.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_inversion_table.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -41,21 +41,21 @@ rule structural_observation:
     output:
         csv=f"{NET_TABLES}/structural_observation.csv",
         md=f"{NET_TABLES}/structural_observation.md",
+    log:
+        f"{NET_LOGS}/structural_observation.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_observation.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
     params:
         function="cvsim6.structural_study:choose_observation",
         source=SCFG["observation"],
         n_flow_samples=SCFG["observation_flow_samples"],
         seed=config["seed"],
-    log:
-        f"{NET_LOGS}/structural_observation.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_observation.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -67,21 +67,21 @@ rule structural_manifold:
         observation=rules.structural_observation.output.csv,
     output:
         samples=f"{STRUCT}/manifold_samples.parquet",
+    log:
+        f"{NET_LOGS}/structural_manifold.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_manifold.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
     params:
         function="cvsim6.structural_study:sample_manifold",
         n_samples=SCFG["n_manifold"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
-    log:
-        f"{NET_LOGS}/structural_manifold.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_manifold.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -95,23 +95,26 @@ rule structural_reconstruction:
         csv=f"{NET_TABLES}/structural_manifold_reconstruction.csv",
         summary=f"{NET_TABLES}/structural_manifold_reconstruction.json",
         md=f"{NET_TABLES}/structural_manifold_reconstruction.md",
-        figure=report(f"{STRUCT}/manifold_trajectories.png", category="Structural study",
-                      caption="../report/structural_trajectories.rst"),
+        figure=report(
+            f"{STRUCT}/manifold_trajectories.png",
+            category="Structural study",
+            caption="../report/structural_trajectories.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_reconstruction.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_reconstruction.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
     params:
         function="cvsim6.structural_study:manifold_reconstruction",
         simulator=config["simulator"],
         n_reconstruct=SCFG["n_reconstruct"],
         n_traces=SCFG["n_traces"],
-    log:
-        f"{NET_LOGS}/structural_reconstruction.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_reconstruction.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -121,22 +124,25 @@ rule structural_parallel_coordinates:
         code=code_for("cvsim6.structural_study:parallel_coordinates"),
         samples=rules.structural_manifold.output.samples,
     output:
-        figure=report(f"{STRUCT}/manifold_parallel_coordinates.png", category="Structural study",
-                      caption="../report/structural_parallel_coordinates.rst"),
-    params:
-        function="cvsim6.structural_study:parallel_coordinates",
-        prior=config["data"]["studies"]["structural"]["prior"],
-        n_lines=SCFG["n_reconstruct"],
+        figure=report(
+            f"{STRUCT}/manifold_parallel_coordinates.png",
+            category="Structural study",
+            caption="../report/structural_parallel_coordinates.rst",
+        ),
     log:
         f"{NET_LOGS}/structural_parallel_coordinates.log",
     benchmark:
         f"{NET_BENCHMARKS}/structural_parallel_coordinates.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.structural_study:parallel_coordinates",
+        prior=config["data"]["studies"]["structural"]["prior"],
+        n_lines=SCFG["n_reconstruct"],
     script:
         "../scripts/call.py"
 
@@ -148,20 +154,23 @@ rule structural_manifold_svd:
     output:
         csv=f"{STRUCT}/manifold_svd.csv",
         summary=f"{STRUCT}/manifold_svd.json",
-        figure=report(f"{STRUCT}/manifold_svd.png", category="Structural study",
-                      caption="../report/structural_svd.rst"),
-    params:
-        function="cvsim6.structural_study:manifold_svd_figure",
+        figure=report(
+            f"{STRUCT}/manifold_svd.png",
+            category="Structural study",
+            caption="../report/structural_svd.rst",
+        ),
     log:
         f"{NET_LOGS}/structural_manifold_svd.log",
     benchmark:
         f"{NET_BENCHMARKS}/structural_manifold_svd.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.structural_study:manifold_svd_figure",
     script:
         "../scripts/call.py"
 
@@ -176,8 +185,21 @@ rule structural_missing_data:
         csv=f"{NET_TABLES}/structural_missing_data.csv",
         summary=f"{NET_TABLES}/structural_missing_data.json",
         md=f"{NET_TABLES}/structural_missing_data.md",
-        figure=report(f"{STRUCT}/missing_data_trajectories.png", category="Structural study",
-                      caption="../report/structural_missing.rst"),
+        figure=report(
+            f"{STRUCT}/missing_data_trajectories.png",
+            category="Structural study",
+            caption="../report/structural_missing.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_missing_data.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_missing_data.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
     params:
         function="cvsim6.structural_study:missing_data",
         simulator=config["simulator"],
@@ -187,16 +209,6 @@ rule structural_missing_data:
         n_latent=SCFG["missing_latent"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
-    log:
-        f"{NET_LOGS}/structural_missing_data.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_missing_data.tsv"
-    threads: 1
-    resources:
-        mem_mb=4000,
-        runtime=30,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -209,8 +221,21 @@ rule structural_jacobian:
         csv=f"{NET_TABLES}/structural_local_identifiability.csv",
         summary=f"{NET_TABLES}/structural_local_identifiability.json",
         md=f"{NET_TABLES}/structural_local_identifiability.md",
-        figure=report(f"{STRUCT}/jacobian_spectra.png", category="Structural study",
-                      caption="../report/structural_jacobian.rst"),
+        figure=report(
+            f"{STRUCT}/jacobian_spectra.png",
+            category="Structural study",
+            caption="../report/structural_jacobian.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_jacobian.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_jacobian.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=15,
     params:
         function="cvsim6.structural_study:jacobian_check",
         prior=config["data"]["studies"]["structural"]["prior"],
@@ -218,15 +243,5 @@ rule structural_jacobian:
         n_points=SCFG["jacobian_points"],
         rel_step=SCFG["jacobian_rel_step"],
         rank_rtol=SCFG["rank_rtol"],
-    log:
-        f"{NET_LOGS}/structural_jacobian.log",
-    benchmark:
-        f"{NET_BENCHMARKS}/structural_jacobian.tsv"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=15,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"

@@ -15,26 +15,26 @@ wildcard_constraints:
 
 rule network_tables:
     input:
-        code=code_for("cvsim6.tables:write_network_tables"),
+        code=code_for("cvsim6.network_tables:write_network_tables"),
     output:
         architecture_csv=f"{TABLES}/{{study}}_architectures.csv",
         architecture_md=f"{TABLES}/{{study}}_architectures.md",
         schedule_csv=f"{TABLES}/{{study}}_schedules.csv",
         schedule_md=f"{TABLES}/{{study}}_schedules.md",
-    params:
-        function="cvsim6.tables:write_network_tables",
-        training=config["training"],
-        study=lambda w: w.study,
     log:
         f"{LOGS}/network_tables/{{study}}.log",
     benchmark:
         f"{BENCHMARKS}/network_tables/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.network_tables:write_network_tables",
+        training=config["training"],
+        study=lambda w: w.study,
     script:
         "../scripts/call.py"
 
@@ -53,22 +53,22 @@ rule train_emulator:
             subcategory="{study}",
             caption="../report/training_losses.rst",
         ),
+    log:
+        f"{LOGS}/train_emulator/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_emulator/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=240,
     params:
         function="cvsim6.training:train_emulator",
         hyper=lambda w: config["training"]["studies"][w.study]["emulator"],
         seed=config["seed"],
         device=config["training"]["device"],
         checkpoint_every=config["training"]["checkpoint_every"],
-    log:
-        f"{LOGS}/train_emulator/{{study}}.log",
-    benchmark:
-        f"{BENCHMARKS}/train_emulator/{{study}}.tsv"
-    threads: config["training"]["threads"]
-    resources:
-        mem_mb=4000,
-        runtime=240,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -87,6 +87,16 @@ rule train_flow:
             subcategory="{study}",
             caption="../report/training_losses.rst",
         ),
+    log:
+        f"{LOGS}/train_flow/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_flow/{{study}}_delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=240,
     params:
         function="cvsim6.training:train_flow",
         hyper=lambda w: config["training"]["studies"][w.study]["flow"],
@@ -94,16 +104,6 @@ rule train_flow:
         seed=config["seed"],
         device=config["training"]["device"],
         checkpoint_every=config["training"]["checkpoint_every"],
-    log:
-        f"{LOGS}/train_flow/{{study}}_delta{{delta}}.log",
-    benchmark:
-        f"{BENCHMARKS}/train_flow/{{study}}_delta{{delta}}.tsv"
-    threads: config["training"]["threads"]
-    resources:
-        mem_mb=4000,
-        runtime=240,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -123,6 +123,16 @@ rule train_encoder_decoder:
             subcategory="{study}",
             caption="../report/training_losses.rst",
         ),
+    log:
+        f"{LOGS}/train_encoder_decoder/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_encoder_decoder/{{study}}_delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=480,
     params:
         function="cvsim6.training:train_encoder_decoder",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
@@ -130,16 +140,6 @@ rule train_encoder_decoder:
         seed=config["seed"],
         device=config["training"]["device"],
         checkpoint_every=config["training"]["checkpoint_every"],
-    log:
-        f"{LOGS}/train_encoder_decoder/{{study}}_delta{{delta}}.log",
-    benchmark:
-        f"{BENCHMARKS}/train_encoder_decoder/{{study}}_delta{{delta}}.tsv"
-    threads: config["training"]["threads"]
-    resources:
-        mem_mb=4000,
-        runtime=480,
-    conda:
-        "../envs/cvsim6.yaml"
     script:
         "../scripts/call.py"
 
@@ -152,19 +152,19 @@ rule emulator_validation:
     output:
         csv=f"{NET_TABLES}/{{study}}_emulator_validation.csv",
         md=f"{NET_TABLES}/{{study}}_emulator_validation.md",
-    params:
-        function="cvsim6.evaluation:emulator_validation",
-        study=lambda w: w.study,
     log:
         f"{NET_LOGS}/emulator_validation/{{study}}.log",
     benchmark:
         f"{NET_BENCHMARKS}/emulator_validation/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.evaluation:emulator_validation",
+        study=lambda w: w.study,
     script:
         "../scripts/call.py"
 
@@ -175,22 +175,26 @@ rule emulator_l2_histogram:
         model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
-        figure=report(f"{NET_TRAINING}/{{study}}/emulator_l2_errors.png", category="Training",
-                      subcategory="{study}", caption="../report/emulator_l2.rst"),
+        figure=report(
+            f"{NET_TRAINING}/{{study}}/emulator_l2_errors.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/emulator_l2.rst",
+        ),
         summary=f"{NET_TRAINING}/{{study}}/emulator_l2_errors.json",
-    params:
-        function="cvsim6.evaluation:emulator_l2_histogram",
-        study=lambda w: w.study,
     log:
         f"{NET_LOGS}/emulator_l2_histogram/{{study}}.log",
     benchmark:
         f"{NET_BENCHMARKS}/emulator_l2_histogram/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.evaluation:emulator_l2_histogram",
+        study=lambda w: w.study,
     script:
         "../scripts/call.py"
 
@@ -201,21 +205,25 @@ rule flow_marginals:
         flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
-        figure=report(f"{NET_TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png", category="Training",
-                      subcategory="{study}", caption="../report/flow_marginals.rst"),
-    params:
-        function="cvsim6.evaluation:flow_marginals",
-        n_samples=20000,
-        seed=config["seed"],
+        figure=report(
+            f"{NET_TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/flow_marginals.rst",
+        ),
     log:
         f"{NET_LOGS}/flow_marginals/{{study}}_delta{{delta}}.log",
     benchmark:
         f"{NET_BENCHMARKS}/flow_marginals/{{study}}_delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=5,
-    conda:
-        "../envs/cvsim6.yaml"
+    params:
+        function="cvsim6.evaluation:flow_marginals",
+        n_samples=20000,
+        seed=config["seed"],
     script:
         "../scripts/call.py"

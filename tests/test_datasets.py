@@ -120,3 +120,16 @@ def test_shard_with_reference_method_matches_batch(tmp_path):
     assert (b["status"] == "ok").all() and (r["status"] == "ok").all()
     np.testing.assert_allclose(b[list(registry.OUTPUT_NAMES)], r[list(registry.OUTPUT_NAMES)], rtol=2e-3, atol=0.05)
     assert not b[list(registry.OUTPUT_NAMES)].equals(r[list(registry.OUTPUT_NAMES)])
+
+
+def test_load_split_reads_registry_order_and_names_a_damaged_cell(tmp_path):
+    build(tmp_path, 1, n=30)
+    df = datasets.read_dataset(tmp_path / "train.parquet")
+    v, y = datasets.load_split(tmp_path / "train.parquet")
+    np.testing.assert_array_equal(v[:, 0], df["Hr"].to_numpy())  # Hr: parameter 0 and output 0, one column
+    np.testing.assert_array_equal(y[:, 0], df["Hr"].to_numpy())
+    np.testing.assert_array_equal(y[:, -1], df["PVR"].to_numpy())
+    df.loc[df.index[3], "C_v"] = np.nan
+    datasets.write_dataset(df, tmp_path / "damaged.parquet")
+    with pytest.raises(ValueError, match=r"damaged\.parquet: non-finite value in row 3, column 'C_v'"):
+        datasets.load_split(tmp_path / "damaged.parquet")

@@ -63,9 +63,19 @@ def dataset_units(path: str | Path) -> dict[str, str]:
 
 
 def load_split(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (N, 23) and outputs (N, 16) of a split file, registry order."""
-    df = read_dataset(path)
-    return df[list(PARAMETER_NAMES)].to_numpy(float), df[list(OUTPUT_NAMES)].to_numpy(float)
+    """Parameters (N, 23) and outputs (N, 16) of a split file, float64, registry order.
+
+    Reads only those columns (``Hr``, a parameter and an output, is one column) and
+    raises ``ValueError`` naming the first non-finite cell: a split holds simulated sets
+    only, so such a value means a damaged file.
+    """
+    columns = list(dict.fromkeys(PARAMETER_NAMES + OUTPUT_NAMES))
+    df = pq.read_table(path, columns=columns).to_pandas()
+    bad = ~np.isfinite(df.to_numpy(np.float64))
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise ValueError(f"{path}: non-finite value in row {row}, column {columns[col]!r}")
+    return df[list(PARAMETER_NAMES)].to_numpy(np.float64), df[list(OUTPUT_NAMES)].to_numpy(np.float64)
 
 
 # ----------------------------------------------------------------------------- steps

@@ -66,7 +66,8 @@ import torch
 from torch import nn
 
 from . import networks as nw
-from .registry import OUTPUT_NAMES, PARAMETER_NAMES, noise_std
+from .datasets import load_split
+from .registry import noise_std
 
 log = logging.getLogger(__name__)
 
@@ -106,19 +107,6 @@ def resolve_device(device: str = "auto") -> torch.device:
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
-
-
-def load_split(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (N, 23) and outputs (N, 16) of a Parquet split, float64, registry order.
-
-    Names shared by a parameter and an output (``Hr``, copied from the input) are one column.
-    """
-    df = pd.read_parquet(path, columns=list(dict.fromkeys(PARAMETER_NAMES + OUTPUT_NAMES)))
-    v = df[list(PARAMETER_NAMES)].to_numpy(np.float64)
-    y = df[list(OUTPUT_NAMES)].to_numpy(np.float64)
-    if not (np.isfinite(v).all() and np.isfinite(y).all()):
-        raise ValueError(f"{path}: non-finite values in parameters or outputs")
-    return v, y
 
 
 def make_optimizer(params, lr: float, weight_decay: float, device: torch.device) -> torch.optim.Adam:

@@ -85,3 +85,25 @@ def test_cvsim6_jacobian_at_default():
     sv, ranks, shares = idf.local_identifiability(idf.scaled_jacobian(J[None], w), rtol=1e-3)
     assert 8 <= ranks[0] <= 16
     assert shares[0, I["Hr"]] < 1e-6  # heart rate is observed directly
+
+
+def test_unstressed_volumes_enter_only_through_their_sum():
+    """Outside the left ventricle (whose volume is an output), the unstressed volumes set
+    the stressed blood volume only through their sum (pressures are (V - V0) / C and the
+    total volume is fixed): 4 exact null directions of the Jacobian at any point. The
+    local-identifiability machinery must find them, with the share each parameter has in
+    that subspace, 1 - w_j^2 / sum_i w_i^2 in prior-width units."""
+    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["structural"])
+    w = hi - lo
+    p = registry.default_parameters()
+    J = idf.finite_difference_jacobian(idf.simulator_outputs(), p, w, rel_step=1e-3)[0]
+    I = registry.PARAMETER_INDEX
+    names = ["V0_a", "V0_v", "V0_r", "V0_pa", "V0_pv"]
+    cols = [I[n] for n in names]
+    # d output / d V0 (per mL) is the same for the five
+    np.testing.assert_allclose(J[:, cols], np.repeat(J[:, cols[:1]], 5, axis=1), rtol=1e-5, atol=1e-9)
+    _, ranks, shares = idf.local_identifiability(idf.scaled_jacobian(J[None], w), rtol=1e-3)
+    ww = w[cols] ** 2
+    expected = 1 - ww / ww.sum()
+    in_null = shares[0, cols] * (23 - ranks[0])  # shares are ||P_null e_j||^2 / dim(null)
+    assert np.all(in_null >= expected - 1e-3), (in_null, expected)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from cvsim6 import model, registry
+from cvsim6 import model, registry, solver
 
 I = registry.PARAMETER_INDEX
 
@@ -86,3 +86,16 @@ def test_parameter_frame_needs_every_name(default_params):
     df = pd.DataFrame([default_params], columns=registry.PARAMETER_NAMES).drop(columns=["C_v"])
     with pytest.raises(model.ParameterError, match="C_v"):
         model.as_parameter_array(df)
+
+
+@pytest.mark.parametrize("which", ["default", "ehr"])
+def test_compiled_kernel_starts_from_the_models_initial_condition(which, default_params, ehr_sets):
+    """The numba kernel solves the appendix-A system itself; its first node must be the
+    pressures cvsim6.model.initial_pressures gives (and the volumes they imply)."""
+    for p in {"default": default_params[None], "ehr": ehr_sets[:4]}[which]:
+        traj, _, status = solver.simulate_trajectory(p, n_cycles=4, window_cycles=1)
+        assert traj.t[0] == 0.0
+        P0 = model.initial_pressures(p)
+        np.testing.assert_allclose(traj.P[0], P0, rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(traj.V[0], model.volumes(0.0, P0, p), rtol=1e-12)
+        np.testing.assert_array_equal(traj.valves[0, [0, 2, 3, 5]], model.valve_states(P0)[[0, 2, 3, 5]])

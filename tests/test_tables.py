@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import registry
+from cvsim6 import priors, registry
 from cvsim6.tables import (
     format_number,
     input_parameter_table,
@@ -47,12 +47,19 @@ def test_input_table_cgs_values_match_paper(name, value):
     assert cgs[name] == pytest.approx(value, rel=2e-3)
 
 
-def test_output_table_follows_registry():
+# The paper's Table 2, typed from the paper: unit and noise standard deviation of each output.
+PAPER_TABLE_2 = [
+    ("Hr", "bpm", 3.0), ("P_a_sys", "mmHg", 1.5), ("P_a_dia", "mmHg", 1.5), ("P_r_sys", "mmHg", 1.0),
+    ("P_r_dia", "mmHg", 1.0), ("P_pa_sys", "mmHg", 1.0), ("P_pa_dia", "mmHg", 1.0), ("P_r_edp", "mmHg", 1.0),
+    ("P_w", "mmHg", 1.0), ("P_cvp", "mmHg", 0.5), ("V_l_sys", "mL", 10.0), ("V_l_dia", "mL", 20.0),
+    ("LVEF", "-", 0.02), ("CO", "L/min", 0.2), ("SVR", "dyn·s/cm^5", 50.0), ("PVR", "dyn·s/cm^5", 5.0),
+]
+
+
+def test_output_table_matches_the_papers_table_2():
     df = output_parameter_table()
     assert list(df.columns) == ["Num.", "Name", "Description", "Calculation", "Unit", "Noise std"]
-    assert tuple(df["Name"]) == registry.OUTPUT_NAMES
-    np.testing.assert_array_equal(df["Noise std"].to_numpy(), registry.noise_std())
-    assert list(df["Unit"]) == [o.unit for o in registry.OUTPUTS]
+    assert list(zip(df["Name"], df["Unit"], df["Noise std"])) == PAPER_TABLE_2
 
 
 @pytest.mark.parametrize(
@@ -84,6 +91,21 @@ def test_written_output_table(tmp_path):
     csv, md = tmp_path / "out.csv", tmp_path / "out.md"
     write_output_table(csv, md)
     back = pd.read_csv(csv)
-    np.testing.assert_array_equal(back["Noise std"].to_numpy(), registry.noise_std())
+    np.testing.assert_array_equal(back["Noise std"].to_numpy(), [std for _, _, std in PAPER_TABLE_2])
     rows = [line for line in md.read_text(encoding="utf-8").splitlines() if line.startswith("|")]
     assert len(rows) == 2 + 16
+
+
+# The paper's priors, from its text: section 3.3 (compliances +-50%, the rest +-30%) and
+# section 3.4 (Hr -20%/+60%, compliances and resistances -80%/+60%, the rest +-30%).
+@pytest.mark.parametrize("study, rules", [
+    ("structural", {"compliance": (0.5, 1.5), "other": (0.7, 1.3)}),
+    ("ehr", {"Hr": (0.8, 1.6), "compliance": (0.2, 1.6), "resistance": (0.2, 1.6), "other": (0.7, 1.3)}),
+])
+def test_prior_bounds_are_the_papers(study, rules):
+    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS[study])
+    for i, p in enumerate(registry.PARAMETERS):
+        m0, m1 = rules.get(p.name, rules.get(p.kind, rules["other"]))
+        expected = sorted((m0 * p.default, m1 * p.default))  # P_th < 0: the interval flips
+        assert (lo[i], hi[i]) == pytest.approx(expected), p.name
+    assert (lo < hi).all()

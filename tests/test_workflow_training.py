@@ -31,7 +31,7 @@ def test_training_stage_end_to_end(tmp_path):
     import json
 
     l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
-    assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"] and l2["paper_max"] == 0.00984
+    assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"]
     assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()
     val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val

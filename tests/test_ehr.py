@@ -1,7 +1,6 @@
 """The EHR loader: layout checks, units, patient selection."""
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 

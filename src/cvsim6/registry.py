@@ -126,15 +126,3 @@ def default_parameters() -> np.ndarray:
 def noise_std() -> np.ndarray:
     """Measurement-noise standard deviations of the 16 outputs (their own units)."""
     return np.array([o.noise_std for o in OUTPUTS], dtype=float)
-
-
-def parameter_label(name: str) -> str:
-    """Axis label with unit, e.g. ``'C_a (mL/mmHg)'``."""
-    p = PARAMETER_BY_NAME[name]
-    return f"{p.name} ({p.unit})"
-
-
-def output_label(name: str) -> str:
-    """Axis label with unit, e.g. ``'P_a_sys (mmHg)'``."""
-    o = OUTPUT_BY_NAME[name]
-    return f"{o.name} ({o.unit})"

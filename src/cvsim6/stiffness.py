@@ -37,7 +37,6 @@ N_CYCLES = solver.DEFAULT_N_CYCLES
 N_LAST = 2
 #: Eigenvalue column names, sorted by |Re| descending.
 LAMBDA_COLUMNS = tuple(f"lambda_{i}" for i in range(1, 7))
-VALVE_NAMES = tuple(registry.VALVES)
 
 
 # ----------------------------------------------------------------------------- core

@@ -111,6 +111,7 @@ def test_scatteritem_parsing():
     assert all(a.stop == b.start for a, b in zip(sizes, sizes[1:]))
 
 
+@pytest.mark.slow
 def test_shard_with_reference_method_matches_batch(tmp_path):
     datasets.sample_prior(str(tmp_path / "p.parquet"), PRIOR, 2, 5, "structural")
     datasets.simulate_shard(str(tmp_path / "p.parquet"), str(tmp_path / "b.parquet"), SIM)

@@ -83,6 +83,7 @@ def test_trajectory_panels_draw_every_set_and_target():
     plt.close(fig)
 
 
+@pytest.mark.slow
 def test_structural_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",

@@ -2,11 +2,13 @@
 import json
 
 import pandas as pd
+import pytest
 
 from cvsim6 import datasets
 from test_workflow import copy_workflow, snakemake
 
 
+@pytest.mark.slow
 def test_data_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = [f"results/data/{s}/{f}" for s in ("structural", "ehr")

@@ -1,10 +1,12 @@
 """The training stage run by Snakemake on the smoke config, in a copy of the workflow."""
 import pandas as pd
+import pytest
 
 from cvsim6 import networks
 from test_workflow import copy_workflow, snakemake
 
 
+@pytest.mark.slow
 def test_training_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/structural_emulator_validation.md",

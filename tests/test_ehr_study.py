@@ -28,6 +28,7 @@ def test_error_per_output_is_the_papers_criterion():
 
 
 @pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
+@pytest.mark.slow
 def test_ehr_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/ehr_error_per_output.md", "results/ehr/patient_predictions_delta0.5.png",

@@ -32,7 +32,7 @@ def test_emulator_validation_caption_counts_left_out_rows(tmp_path, monkeypatch)
             out[0, 3] = np.nan
             return out
 
-    monkeypatch.setattr("cvsim6.networks.load_model", lambda path: Emulator())
+    monkeypatch.setattr(evaluation, "load_model", lambda path: Emulator())
     monkeypatch.setattr(evaluation.datasets, "load_split", lambda path: (np.zeros((4, 23)), np.ones((4, 16))))
     evaluation.emulator_validation("m.pt", "v.parquet", str(tmp_path / "t.csv"), str(tmp_path / "t.md"), "ehr")
     md = (tmp_path / "t.md").read_text()

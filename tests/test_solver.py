@@ -37,6 +37,7 @@ def default_reference(default_params):
     return out[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", ["batch", "reference"])
 def test_default_reproduces_facts_page(path, default_batch, default_reference):
     out = default_batch if path == "batch" else default_reference
@@ -78,6 +79,7 @@ def test_total_volume_is_conserved_along_trajectory(ehr_sets):
         assert traj.t[-1] == pytest.approx(12 * T)
 
 
+@pytest.mark.slow
 def test_reference_conserves_total_volume(default_params):
     sol = solver.reference_solution(default_params)
     t = np.linspace(0, sol.t_end, 3001)
@@ -85,6 +87,7 @@ def test_reference_conserves_total_volume(default_params):
     assert np.abs(vt - registry.V_TOTAL_ML).max() < 1e-5
 
 
+@pytest.mark.slow
 def test_batch_matches_reference_on_both_priors(structural_sets, ehr_sets):
     """Random sets from the structural and the wide EHR prior (the stiff case)."""
     P = np.vstack([structural_sets[20:22], ehr_sets[20:23]])
@@ -170,6 +173,7 @@ def test_trajectory_frame_has_every_signal(default_params):
     assert opens == 4
 
 
+@pytest.mark.slow
 def test_valve_at_equilibrium_is_not_a_failure(tmp_path):
     """Rows of the default EHR data set where a valve at pressure equilibrium toggles
     within a step (once flagged as chatter) are accurate and not flagged."""

@@ -46,9 +46,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, solver
+from .datasets import load_split
+from .ehr_study import invert_observations, unit_message, unit_problems
 from .model import ParameterError
-from .networks import DEFAULT_CORRECTOR_STEPS
+from .networks import DEFAULT_CORRECTOR_STEPS, load_model
 from .registry import OUTPUT_NAMES, PARAMETER_NAMES
 
 #: Cell texts read as blank (case-insensitive, after stripping spaces).
@@ -157,8 +159,6 @@ def _lines(lines, limit: int = 5) -> str:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from . import solver
-
     if args.steps_per_cycle < solver.MIN_STEPS_PER_CYCLE:
         raise InputError(f"--steps-per-cycle {args.steps_per_cycle} is below the solver's minimum of "
                          f"{solver.MIN_STEPS_PER_CYCLE}")
@@ -195,8 +195,6 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _invert(args: argparse.Namespace) -> int:
-    from .ehr_study import invert_observations, unit_message, unit_problems
-
     for opt, value, low in (("--samples", args.samples, 1), ("--flow-samples", args.flow_samples, 1),
                             ("--reference-size", args.reference_size, 1),
                             ("--corrector-steps", args.corrector_steps, 0)):
@@ -248,8 +246,6 @@ def _invert(args: argparse.Namespace) -> int:
     nets = {k: _load_model(f) for k, f in files.items()}
     ref = None
     if args.reference:
-        from .datasets import load_split
-
         if not Path(args.reference).is_file():
             raise InputError(f"--reference {args.reference}: no such file")
         try:
@@ -277,8 +273,6 @@ def _invert(args: argparse.Namespace) -> int:
 def _load_model(path: Path):
     """A saved network; a file that is not one raises :class:`InputError`."""
     import pickle
-
-    from .networks import load_model
 
     try:
         return load_model(path)

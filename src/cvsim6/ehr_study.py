@@ -18,10 +18,13 @@ import numpy as np
 import pandas as pd
 
 from . import inversion
+from .datasets import load_split
 from .model import outside_domain
-from .networks import DEFAULT_CORRECTOR_STEPS
+from .networks import DEFAULT_CORRECTOR_STEPS, load_model
+from .plots import label, save_figure
 from .registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES, noise_std
-from .solver import STATUS_REASONS, unphysical
+from .solver import STATUS_OUTSIDE_DOMAIN, STATUS_REASONS, STATUS_UNPHYSICAL, unphysical
+from .tables import write_table
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +212,8 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
             ref_scores[key] = inversion.reference_scores(flow, pick, ~seen, reference_flow_samples, seed=seed)
         scores = ref_scores[key]
         dom = outside_domain(v)
-        draw_status = np.where(dom, STATUS_REASONS[7], np.where(unphysical(v), STATUS_REASONS[8], "ok"))
+        draw_status = np.where(dom, STATUS_REASONS[STATUS_OUTSIDE_DOMAIN],
+                               np.where(unphysical(v), STATUS_REASONS[STATUS_UNPHYSICAL], "ok"))
         if dom.any():
             warn(pid, f"{int(dom.sum())} of {n_latent} decoded parameter sets are outside the model's domain "
                       "(see outside_domain)")
@@ -251,9 +255,6 @@ def invert_ehr_patients(patients: str, flow: str, encoder_decoder: str, emulator
                         corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
     """Workflow step: invert the selected EHR patients with the networks of one noise level
     (a patient that cannot be inverted is logged and kept with its reason in ``status``)."""
-    from .datasets import load_split
-    from .networks import load_model
-
     obs = pd.read_csv(patients, index_col="patient")[list(OUTPUT_NAMES)]
     _, y_ref = load_split(reference)
     df = invert_observations(obs, load_model(flow), load_model(encoder_decoder), load_model(emulator),
@@ -287,8 +288,6 @@ def error_per_output(observations: pd.DataFrame, predictions: pd.DataFrame) -> p
 
 def ehr_error_table(patients: str, predictions: list[str], csv: str, md: str) -> None:
     """The paper's table 5: e_k per output and noise level, counts, the paper's values beside."""
-    from .tables import write_table
-
     obs = pd.read_csv(patients, index_col="patient")
     table = pd.DataFrame({"Output": list(OUTPUT_NAMES), "Unit": [o.unit for o in OUTPUTS]})
     deltas = []
@@ -310,8 +309,6 @@ def ehr_error_table(patients: str, predictions: list[str], csv: str, md: str) ->
 def ehr_patient_figure(patients: str, predictions: str, figure: str) -> None:
     """Per output: each patient's measurement (red star), the predictions (blue dots), +-3 sigma (gray)."""
     import matplotlib.pyplot as plt
-
-    from .plots import label, save_figure
 
     obs = pd.read_csv(patients, index_col="patient")
     pred = pd.read_parquet(predictions)
@@ -349,8 +346,6 @@ def ehr_patient_figure(patients: str, predictions: str, figure: str) -> None:
 def ood_table(predictions: str, csv: str, md: str) -> None:
     """Per patient: log-density of the best completion, its OOD percentile, the reference
     size it was ranked in (resolution 100/size %), the outputs beyond the training range."""
-    from .tables import write_table
-
     pred = pd.read_parquet(predictions)
     cols = [c for c in ("status", "log_density", "ood_percentile", "ood_reference_size", "outside_training")
             if c in pred.columns]

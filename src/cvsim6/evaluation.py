@@ -7,7 +7,10 @@ import numpy as np
 import pandas as pd
 
 from . import datasets, paper_values
+from .networks import load_model
+from .plots import label, save_figure
 from .registry import OUTPUT_NAMES, OUTPUTS
+from .tables import write_table
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +56,6 @@ def error_table(stats: pd.DataFrame, paper: dict | None) -> pd.DataFrame:
 
 def emulator_validation(model: str, validation: str, csv: str, md: str, study: str) -> None:
     """Appendix C table: absolute error of the emulator on the validation split."""
-    from .networks import load_model
-    from .tables import write_table
-
     emu = load_model(model)
     v, y = datasets.load_split(validation)
     stats = error_statistics(y, emu.predict(v))
@@ -77,9 +77,6 @@ def emulator_l2_histogram(model: str, validation: str, figure: str, summary: str
     import json
 
     import matplotlib.pyplot as plt
-
-    from .networks import load_model
-    from .plots import save_figure
 
     v, y = datasets.load_split(validation)
     err = relative_l2_errors(y, load_model(model).predict(v))
@@ -104,9 +101,6 @@ def flow_marginals(flow: str, validation: str, figure: str, n_samples: int, seed
     """The 16 output marginals of NN_f samples (red) against the data (blue) (appendix C)."""
     import matplotlib.pyplot as plt
     import torch
-
-    from .networks import load_model
-    from .plots import label, save_figure
 
     _, y = datasets.load_split(validation)
     s = load_model(flow).sample_physical(n_samples, generator=torch.Generator().manual_seed(seed))

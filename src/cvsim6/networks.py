@@ -35,6 +35,7 @@ import torch
 from torch import nn
 
 from .registry import N_OUTPUTS, N_PARAMETERS
+from .registry import noise_std as _noise_std
 
 #: Version tag stored in every saved model file.
 FORMAT = "cvsim6-invaert/1"
@@ -470,8 +471,6 @@ def draw_noise(n: int, noise_level: float, generator: torch.Generator | None = N
     ``s`` defaults to :func:`cvsim6.registry.noise_std`. ``noise_level`` (delta) 0 returns
     zeros without consuming random numbers.
     """
-    from .registry import noise_std as _noise_std
-
     s = np.asarray(_noise_std() if std is None else std, dtype=np.float64)
     if noise_level == 0:
         return torch.zeros(n, s.size, dtype=dtype)

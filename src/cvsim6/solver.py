@@ -35,9 +35,7 @@ scalar minimization. It is slow (seconds per set) and exists to check the batch 
 from __future__ import annotations
 
 import logging
-import math
 import re
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,12 +45,13 @@ from scipy.optimize import minimize_scalar
 
 from . import _kernel, model
 from .registry import (
-    MMHG_TO_BARYE,  # noqa: F401  (documented unit conversion)
+    COMPARTMENTS,
+    FLOWS,
     N_OUTPUTS,
     OUTPUT_NAMES,
     PARAMETER_INDEX,
     PARAMETER_NAMES,
-    V_TOTAL_ML,
+    VALVES,
     WOOD_TO_DYN,
 )
 
@@ -73,6 +72,8 @@ STATUS_REASONS = {
     8: "unphysical parameters (a negative unstressed volume, or a ventricle's systolic compliance "
        "not below its diastolic one)",
 }
+#: Status of a row whose parameters the equations cannot take (``invalid="flag"``).
+STATUS_OUTSIDE_DOMAIN = 7
 #: Status of a row whose parameters the equations accept but no circulation has (see
 #: :func:`unphysical`): simulated, outputs kept, flagged.
 STATUS_UNPHYSICAL = 8
@@ -185,7 +186,7 @@ def simulate_batch(
     status = np.zeros(n, dtype=np.int64)
     bad = model.outside_domain(P)
     if bad.any():
-        status[bad] = 7
+        status[bad] = STATUS_OUTSIDE_DOMAIN
         keep = np.flatnonzero(~bad)
         o, s = simulate_batch(P[keep], steps_per_cycle, n_cycles, window_cycles, progress, chunk_size)
         out[keep], status[keep] = o, s
@@ -270,8 +271,6 @@ class Trajectory:
 
     def to_frame(self) -> pd.DataFrame:
         """Tidy table: t, P_*, V_*, Q_*, C_l, C_r and the four valve states."""
-        from .registry import COMPARTMENTS, FLOWS, VALVES
-
         cols = {"t": self.t}
         for i, c in enumerate(COMPARTMENTS):
             cols[f"P_{c}"] = self.P[:, i]

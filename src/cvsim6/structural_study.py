@@ -14,7 +14,7 @@ import pandas as pd
 
 from . import datasets, evaluation, identifiability, inversion, paper_values, priors, solver
 from .model import outside_domain
-from .networks import load_model
+from .networks import DEFAULT_CORRECTOR_STEPS, load_model
 from .plots import save_figure
 from .registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
 from .tables import write_table
@@ -30,13 +30,18 @@ def _simulate(v: np.ndarray, simulator: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _flag_counts(status: np.ndarray) -> dict[str, int]:
-    """Sets outside the model's domain and sets the simulator flagged (status codes)."""
-    return {"outside_domain": int((status == 7).sum()), "flagged": int(((status != 0) & (status != 7)).sum())}
+    """Decoded sets outside the model's domain, unphysical ones (simulated, left out) and the
+    others the simulator flagged (solver status codes)."""
+    special = (solver.STATUS_OUTSIDE_DOMAIN, solver.STATUS_UNPHYSICAL)
+    return {"outside_domain": int((status == solver.STATUS_OUTSIDE_DOMAIN).sum()),
+            "unphysical": int((status == solver.STATUS_UNPHYSICAL).sum()),
+            "flagged": int(((status != 0) & ~np.isin(status, special)).sum())}
 
 
 def _flag_words(status: np.ndarray) -> str:
     c = _flag_counts(status)
-    return f"{c['outside_domain']} decoded sets outside the model's domain, {c['flagged']} flagged by the simulator"
+    return (f"{c['outside_domain']} decoded sets outside the model's domain, {c['unphysical']} unphysical, "
+            f"{c['flagged']} flagged by the simulator")
 
 
 def _manifold_samples(samples: str) -> tuple[np.ndarray, int]:
@@ -47,7 +52,7 @@ def _manifold_samples(samples: str) -> tuple[np.ndarray, int]:
 
 
 def inversion_table(encoder_decoder: str, validation: str, csv: str, summary: str, md: str, simulator: dict, seed: int,
-                    corrector_steps: int = 0) -> None:
+                    corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
     """Table 3: decoder on the validation outputs (one w each, ``corrector_steps`` rounds of
     predictor-corrector sampling), pushed through the simulator."""
     ed = load_model(encoder_decoder)
@@ -58,7 +63,8 @@ def inversion_table(encoder_decoder: str, validation: str, csv: str, summary: st
     stats = evaluation.error_statistics(y[ok], yhat[ok])
     write_table(evaluation.error_table(stats, paper_values.INVERSION_STRUCTURAL), csv, md,
                 caption=f"Absolute reconstruction error of the amortized inversion on {ok.sum():,} of "
-                        f"{len(y):,} validation outputs (decoded parameters simulated; {_flag_words(st)}); "
+                        f"{len(y):,} validation outputs (decoded parameters simulated; {_flag_words(st)}"
+                        f"{evaluation.nonfinite_words(stats)}); "
                         "paper table 3 beside")
     Path(summary).write_text(json.dumps({"n": int(len(y)), **_flag_counts(st)}, indent=2) + "\n")
 
@@ -83,7 +89,7 @@ def _y_star(observation: str) -> np.ndarray:
 
 
 def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samples: int, seed: int,
-                    corrector_steps: int = 0) -> None:
+                    corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
     """Decode y* with ``n_samples`` latent draws (``corrector_steps`` predictor-corrector
     rounds): parameter sets on the manifold M_y* (Parquet)."""
     v = inversion.decode_latent(load_model(encoder_decoder), _y_star(observation)[None], n_samples, seed=seed,
@@ -223,7 +229,7 @@ def manifold_svd_figure(samples: str, figure: str, csv: str, summary: str, level
 
 def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, summary: str, md: str, figure: str,
                  simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int,
-                 corrector_steps: int = 0) -> None:
+                 corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
     """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
     largest relative l2 error on the observed entries (paper: ~0.408%) and the trajectory figure."""
     import matplotlib.pyplot as plt

@@ -94,8 +94,10 @@ def declared_localrules() -> set[str]:
     """Rules named in ``localrules:`` directives of the workflow (run by Snakemake itself)."""
     names: set[str] = set()
     for f in [ROOT / "Snakefile", *sorted((ROOT / "workflow" / "rules").glob("*.smk"))]:
-        for block in re.findall(r"^localrules:((?:\s*\w+,?)+)", f.read_text(), flags=re.M):
-            names.update(re.findall(r"\w+", block))
+        # "localrules: a, b" or "localrules:" followed by indented lines "    a,"
+        for same_line, indented in re.findall(r"^localrules:([^\n]*)\n((?:[ \t]+[^\n]*\n)*)", f.read_text(),
+                                              flags=re.M):
+            names.update(re.findall(r"\w+", same_line + indented))
     return names
 
 

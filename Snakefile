@@ -37,6 +37,8 @@ include: "workflow/rules/scorecard.smk"
 
 localrules:
     all,
+    download_ehr,
+    fetch_published_networks,
 
 
 rule all:

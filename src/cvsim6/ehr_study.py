@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import inversion
+from . import inversion, paper_values
 from .datasets import load_split
 from .model import outside_domain
 from .networks import DEFAULT_CORRECTOR_STEPS, load_model
@@ -28,18 +28,6 @@ from .tables import write_table
 
 log = logging.getLogger(__name__)
 
-#: Paper table 5 (e_k per output, delta = 0.25, 0.5, 1.0, 2.0; None where never observed).
-PAPER_EK = {
-    "Hr": (0.602, 0.440, 0.843, 2.636), "P_a_sys": (5.204, 2.284, 3.379, 2.738),
-    "P_a_dia": (3.614, 1.605, 2.045, 2.627), "P_r_sys": (1.669, 1.323, 1.469, 1.476),
-    "P_r_dia": (1.170, 1.684, 2.022, 3.383), "P_pa_sys": (1.907, 1.227, 1.606, 1.386),
-    "P_pa_dia": (1.285, 1.062, 1.065, 1.290), "P_r_edp": (0.540, 0.599, 0.786, 2.787),
-    "P_w": (0.887, 0.740, 1.258, 1.200), "P_cvp": (1.194, 0.371, 0.733, 0.821),
-    "V_l_sys": (None, None, None, None), "V_l_dia": (50.960, 47.391, 103.402, 119.440),
-    "LVEF": (0.012, 0.008, 0.015, 0.024), "CO": (0.200, 0.121, 0.281, 0.274),
-    "SVR": (28.755, 24.728, 25.896, 41.233), "PVR": (1.924, 1.812, 2.010, 3.795),
-}
-PAPER_DELTAS = (0.25, 0.5, 1.0, 2.0)
 PRED = "pred_"  # prefix of emulated-output columns (Hr is both a parameter and an output)
 
 
@@ -298,8 +286,8 @@ def ehr_error_table(patients: str, predictions: list[str], csv: str, md: str) ->
         table[f"delta={d:g}"] = error_per_output(obs, pred)["e_k"].to_numpy()
     cols = [f"delta={d:g}" for d in deltas]
     table["Best (ours)"] = [cols[int(np.nanargmin(r))] if np.isfinite(r).any() else "" for r in table[cols].to_numpy()]
-    for i, d in enumerate(PAPER_DELTAS):
-        table[f"paper delta={d:g}"] = [PAPER_EK[n][i] for n in OUTPUT_NAMES]
+    for i, d in enumerate(paper_values.EHR_DELTAS):
+        table[f"paper delta={d:g}"] = [paper_values.EHR_EK[n][i] for n in OUTPUT_NAMES]
     e = error_per_output(obs, pd.read_parquet(predictions[0]))
     table["Counts"] = [f"{c}/{n}" for c, n in zip(e["count"], e["patients"])]
     write_table(table, csv, md, caption="Reconstruction error e_k per output (N_w latent draws, emulated), "

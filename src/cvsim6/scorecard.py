@@ -84,22 +84,17 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
     values: dict[str, float] = {}
     rows: list[Headline] = []
 
-    def add(key, label, paper, where, file, value):
-        rows.append(Headline(key, label, float(paper), where, file, is_ratio="ours/paper" in label))
+    def add(key, label, paper, where, file, value, is_ratio=False):
+        rows.append(Headline(key, label, float(paper), where, file, is_ratio))
         values[key] = float(value)
 
-    emu = pd.read_csv(files["structural_emulator"])
-    for stat in ("Mean", "Max"):
-        add(f"structural_emulator_{stat.lower()}",
-            f"Structural emulator, {stat.lower()} abs. error: geometric mean of ours/paper over 16 outputs",
-            1.0, "appendix C table", files["structural_emulator"],
-            _geomean_ratio(emu[f"{stat} (ours)"], emu[f"{stat} (paper)"]))
-    inv = pd.read_csv(files["structural_inversion"])
-    for stat in ("Mean", "Max"):
-        add(f"structural_inversion_{stat.lower()}",
-            f"Amortized inversion, {stat.lower()} abs. error: geometric mean of ours/paper over 16 outputs",
-            1.0, "table 3", files["structural_inversion"],
-            _geomean_ratio(inv[f"{stat} (ours)"], inv[f"{stat} (paper)"]))
+    for key, name, where in (("structural_emulator", "Structural emulator", "appendix C table"),
+                             ("structural_inversion", "Amortized inversion", "table 3")):
+        table = pd.read_csv(files[key])
+        for stat in ("Mean", "Max"):
+            add(f"{key}_{stat.lower()}",
+                f"{name}, {stat.lower()} abs. error: geometric mean of ours/paper over 16 outputs", 1.0, where,
+                files[key], _geomean_ratio(table[f"{stat} (ours)"], table[f"{stat} (paper)"]), is_ratio=True)
     h = paper_values.STRUCTURAL_HEADLINES
     add("manifold_l2", "Manifold reconstruction of y*: max relative l2 error (%)", 100 * h["max_rel_error_manifold"],
         "section 3.3.2, fig. 8", files["manifold"], 100 * _read_json(files["manifold"])["max_rel_l2_error"])
@@ -123,7 +118,7 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
             continue
         add(f"ek_{d:g}", f"EHR e_k at delta = {d:g}: geometric mean of ours/paper over the {len(outputs)} outputs "
             f"observed in > {MIN_PATIENTS_EXCLUSIVE} patients", 1.0, "table 5", files["ehr_errors"],
-            _geomean_ratio(t.loc[outputs, col], [paper_values.EHR_EK[n][i] for n in outputs]))
+            _geomean_ratio(t.loc[outputs, col], [paper_values.EHR_EK[n][i] for n in outputs]), is_ratio=True)
     add("ek_best_delta", f"EHR: outputs whose lowest e_k is at the paper's delta (of {len(outputs)})",
         len(outputs), "table 5", files["ehr_errors"], best_delta_agreement(ek, outputs))
     st = pd.read_csv(files["stiffness"])

@@ -33,10 +33,12 @@ include: "workflow/rules/training.smk"
 include: "workflow/rules/structural.smk"
 include: "workflow/rules/published.smk"
 include: "workflow/rules/scorecard.smk"
+include: "workflow/rules/calibration.smk"
 
 
 localrules:
     all,
+    calibration,
     download_ehr,
     fetch_published_networks,
 

@@ -119,3 +119,23 @@ def scorecard_files(source):
         ehr_emulator=f"{root}/training/ehr/emulator_l2_errors.json",
         ehr_errors=f"{root}/tables/ehr_error_per_output.csv",
     )
+
+
+def calibration_deltas():
+    """File tags of the EHR study's noise levels (one NPE and one calibration run each)."""
+    return noise_tags("ehr")
+
+
+def calibration_figure_delta():
+    """Noise level tag of the rank and recovery figures (ehr_study.figure_noise_level)."""
+    return noise_tag(config["ehr_study"]["figure_noise_level"])
+
+
+def invaert_training_losses(wildcards=None):
+    """The encoder/decoder loss CSVs (their epoch seconds), when the networks are trained here."""
+    if NETWORK_SOURCE != "trained":
+        return []
+    return [
+        f"{RESULTS}/training/ehr/encoder_decoder_delta{d}_losses.csv"
+        for d in calibration_deltas()
+    ]

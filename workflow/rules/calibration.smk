@@ -1,0 +1,208 @@
+# Calibration of the inverse on simulated EHR-prior cases, inVAErt beside sbi's neural
+# posterior estimation (NPE), and the EHR patients inverted three ways (beyond the paper).
+# Target: snakemake --cores 2 --workflow-profile workflow/profiles/local calibration
+
+#: Calibration samples and figures of the networks in use (trained or published).
+CALIBRATION = f"{NET}/calibration"
+
+
+rule train_npe:
+    input:
+        code=code_for("cvsim6.npe:train_npe"),
+        train=f"{DATA}/ehr/train.parquet",
+    output:
+        model=f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt",
+        losses=f"{TRAINING}/ehr/npe_delta{{delta}}_losses.csv",
+        figure=report(
+            f"{TRAINING}/ehr/npe_delta{{delta}}_losses.png",
+            category="Calibration",
+            subcategory="NPE training",
+            caption="../report/npe_losses.rst",
+        ),
+    log:
+        f"{LOGS}/train_npe/delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_npe/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    params:
+        function="cvsim6.npe:train_npe",
+        prior=config["data"]["studies"]["ehr"]["prior"],
+        hyper=config["calibration"]["npe"],
+        noise_level=lambda w: float(w.delta),
+        seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule calibration_samples:
+    input:
+        code=code_for("cvsim6.calibration_study:calibration_samples"),
+        validation=f"{DATA}/ehr/validation.parquet",
+        encoder_decoder=f"{MODELS}/ehr/encoder_decoder_delta{{delta}}.pt",
+        npe=rules.train_npe.output.model,
+    output:
+        samples=f"{CALIBRATION}/samples_delta{{delta}}.npz",
+    log:
+        f"{NET_LOGS}/calibration_samples/delta{{delta}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/calibration_samples/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    params:
+        function="cvsim6.calibration_study:calibration_samples",
+        noise_level=lambda w: float(w.delta),
+        n_cases=config["calibration"]["n_cases"],
+        n_samples=config["calibration"]["n_samples"],
+        corrector_steps=config["ehr_study"]["corrector_steps"],
+        seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule calibration_summary:
+    input:
+        code=code_for("cvsim6.calibration_study:calibration_summary"),
+        samples=expand(
+            f"{CALIBRATION}/samples_delta{{delta}}.npz", delta=calibration_deltas()
+        ),
+        npe_models=expand(
+            f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt", delta=calibration_deltas()
+        ),
+        invaert_losses=invaert_training_losses,
+    output:
+        csv=f"{NET_TABLES}/calibration_summary.csv",
+        md=f"{NET_TABLES}/calibration_summary.md",
+        coverage_figure=report(
+            f"{CALIBRATION}/coverage.png",
+            category="Calibration",
+            caption="../report/calibration_coverage.rst",
+        ),
+        rank_figure=report(
+            f"{CALIBRATION}/rank_ecdf_delta{calibration_figure_delta()}.png",
+            category="Calibration",
+            caption="../report/calibration_ranks.rst",
+        ),
+        recovery_figure=report(
+            f"{CALIBRATION}/recovery_delta{calibration_figure_delta()}.png",
+            category="Calibration",
+            caption="../report/calibration_recovery.rst",
+        ),
+    log:
+        f"{NET_LOGS}/calibration_summary.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/calibration_summary.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    params:
+        function="cvsim6.calibration_study:calibration_summary",
+        prior=config["data"]["studies"]["ehr"]["prior"],
+        simulator=config["simulator"],
+        figure_noise_level=config["ehr_study"]["figure_noise_level"],
+        identifiability_points=config["calibration"]["identifiability_points"],
+        rel_step=config["structural_study"]["jacobian_rel_step"],
+        rank_rtol=config["structural_study"]["rank_rtol"],
+        nonidentifiable_share=config["calibration"]["nonidentifiable_share"],
+        seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule simulate_ehr_predictions:
+    input:
+        code=code_for("cvsim6.ehr_methods:simulate_ehr_predictions"),
+        predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
+    output:
+        simulated=f"{NET_EHR}/predictions_delta{{delta}}_simulated.parquet",
+    log:
+        f"{NET_LOGS}/simulate_ehr_predictions/delta{{delta}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/simulate_ehr_predictions/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    params:
+        function="cvsim6.ehr_methods:simulate_ehr_predictions",
+        simulator=config["simulator"],
+    script:
+        "../scripts/call.py"
+
+
+rule invert_ehr_npe:
+    input:
+        code=code_for("cvsim6.ehr_methods:invert_ehr_npe"),
+        predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
+        npe=rules.train_npe.output.model,
+    output:
+        npe_predictions=f"{NET_EHR}/npe_predictions_delta{{delta}}.parquet",
+    log:
+        f"{NET_LOGS}/invert_ehr_npe/delta{{delta}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/invert_ehr_npe/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    params:
+        function="cvsim6.ehr_methods:invert_ehr_npe",
+        simulator=config["simulator"],
+        seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule ehr_error_methods:
+    input:
+        code=code_for("cvsim6.ehr_methods:ehr_error_methods"),
+        patients=rules.ehr_patients.output.patients,
+        emulated=expand(
+            f"{NET_EHR}/predictions_delta{{delta}}.parquet", delta=calibration_deltas()
+        ),
+        invaert_simulated=expand(
+            rules.simulate_ehr_predictions.output.simulated, delta=calibration_deltas()
+        ),
+        npe_simulated=expand(
+            rules.invert_ehr_npe.output.npe_predictions, delta=calibration_deltas()
+        ),
+    output:
+        csv=f"{NET_TABLES}/ehr_error_methods.csv",
+        md=f"{NET_TABLES}/ehr_error_methods.md",
+    log:
+        f"{NET_LOGS}/ehr_error_methods.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/ehr_error_methods.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        function="cvsim6.ehr_methods:ehr_error_methods",
+        figure_noise_level=config["ehr_study"]["figure_noise_level"],
+    script:
+        "../scripts/call.py"
+
+
+rule calibration:
+    input:
+        rules.calibration_summary.output,
+        rules.ehr_error_methods.output,
+        expand(rules.train_npe.output.figure, delta=calibration_deltas()),

@@ -52,7 +52,8 @@ def test_save_load_gives_the_same_samples_with_the_same_seed(trained, tmp_path):
     assert (a >= LO).all() and (a <= HI).all()
 
 
-def test_training_is_seeded():
+def test_training_is_seeded_and_writes_nothing_beside(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     theta, y = toy_pairs(500, 1)
     hyper = {"max_epochs": 2, "hidden_features": 16, "num_transforms": 2}
     one, _ = npe.fit_npe(theta, y, LO, HI, hyper, seed=5)
@@ -62,6 +63,7 @@ def test_training_is_seeded():
     a = one.sample(y_obs, 20, seed=0)
     np.testing.assert_array_equal(a, two.sample(y_obs, 20, seed=0))
     assert not np.array_equal(a, other.sample(y_obs, 20, seed=0))
+    assert list(tmp_path.iterdir()) == []  # no TensorBoard folder (sbi-logs/) in the working directory
 
 
 def test_posterior_learns_the_observed_parameters(trained):

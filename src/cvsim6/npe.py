@@ -92,6 +92,28 @@ def logistic_prior(dim: int = N_PARAMETERS) -> Independent:
     return Independent(_StandardLogistic(dim), 1)
 
 
+class _NoTracker:
+    """sbi's experiment-tracker protocol, doing nothing: the losses go to our CSV instead of
+    a TensorBoard folder ``sbi-logs/`` in the working directory."""
+
+    log_dir = None
+
+    def log_metric(self, name, value, step=None) -> None:
+        pass
+
+    def log_metrics(self, metrics, step=None) -> None:
+        pass
+
+    def log_params(self, params) -> None:
+        pass
+
+    def add_figure(self, name, figure, step=None) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+
 def _builder(h: dict):
     return posterior_nn(model=h["model"], hidden_features=int(h["hidden_features"]),
                         num_transforms=int(h["num_transforms"]), z_score_theta="independent",
@@ -142,7 +164,8 @@ def fit_npe(theta: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, hy
         # sbi warns when max_epochs ends training before its early stop: the losses CSV shows it
         warnings.filterwarnings("ignore", message="Maximum number of epochs")
         torch.manual_seed(int(seed))
-        inference = NPE(prior=logistic_prior(len(lo)), density_estimator=_builder(h), show_progress_bars=False)
+        inference = NPE(prior=logistic_prior(len(lo)), density_estimator=_builder(h), show_progress_bars=False,
+                        tracker=_NoTracker())
         inference.append_simulations(u, x)
         estimator = inference.train(training_batch_size=int(h["batch_size"]), learning_rate=float(h["lr"]),
                                     validation_fraction=float(h["validation_fraction"]),

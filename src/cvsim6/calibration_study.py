@@ -165,8 +165,9 @@ def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md:
                                 "0.05..0.95; TARP ATC: 0 calibrated, < 0 over-confident, > 0 under-confident; "
                                 "contraction 1 - Var_post/Var_prior; NRMSE of the posterior mean in prior "
                                 "standard deviations; non-identifiable: mean Jacobian null-space share > "
-                                f"{nonidentifiable_share:g}. Training (s): NPE wall time; inVAErt: its encoder/decoder "
-                                "epochs (not the emulator it trains through, shared by all noise levels; empty when the networks were not trained here)")
+                                f"{nonidentifiable_share:g}. Training (s): NPE wall time; inVAErt: its "
+                                "encoder/decoder epochs (not the emulator it trains through, shared by all noise "
+                                "levels; empty when the networks were not trained here)")
     text += "\n" + to_markdown(detail, f"Per parameter at delta = {fig_d:g}")
     Path(md).write_text(text, encoding="utf-8")
     _coverage_figure(curves, sorted({d for _, d in curves}), coverage_figure)

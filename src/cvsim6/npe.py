@@ -149,11 +149,12 @@ class NPEPosterior:
 
 
 def fit_npe(theta: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, hyper: dict | None = None,
-            seed: int = 0) -> tuple[NPEPosterior, pd.DataFrame]:
+            seed: int = 0, progress: bool = False) -> tuple[NPEPosterior, pd.DataFrame]:
     """Train sbi's NPE on pairs (theta (n, 23) physical, y (n, 16) already noisy).
 
     Returns the posterior and the per-epoch losses (``epoch``, ``train_loss``, ``test_loss``:
-    sbi's validation loss, negative log-likelihood in nats; ``seconds``).
+    sbi's validation loss, negative log-likelihood in nats; ``seconds``). ``progress`` prints
+    sbi's epoch counter (to stdout, the rule's log in the workflow).
     """
     h = check_hyper(hyper)
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
@@ -164,7 +165,7 @@ def fit_npe(theta: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, hy
         # sbi warns when max_epochs ends training before its early stop: the losses CSV shows it
         warnings.filterwarnings("ignore", message="Maximum number of epochs")
         torch.manual_seed(int(seed))
-        inference = NPE(prior=logistic_prior(len(lo)), density_estimator=_builder(h), show_progress_bars=False,
+        inference = NPE(prior=logistic_prior(len(lo)), density_estimator=_builder(h), show_progress_bars=bool(progress),
                         tracker=_NoTracker())
         inference.append_simulations(u, x)
         estimator = inference.train(training_batch_size=int(h["batch_size"]), learning_rate=float(h["lr"]),
@@ -221,7 +222,7 @@ def train_npe(train: str, model: str, losses: str, figure: str, prior: dict, hyp
     lo, hi = prior_bounds(prior)
     gen = torch.Generator().manual_seed(derived_seed(seed, 3))
     y_noisy = y + nw.draw_noise(len(y), float(noise_level), gen).numpy()
-    post, hist = fit_npe(v, y_noisy, lo, hi, hyper, seed=seed)
+    post, hist = fit_npe(v, y_noisy, lo, hi, hyper, seed=seed, progress=True)
     post.info.update(noise_level=float(noise_level), label=f"delta={noise_level:g}")
     save_npe(post, model)
     Path(losses).parent.mkdir(parents=True, exist_ok=True)

@@ -131,7 +131,7 @@ def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md:
     Path(csv).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(csv, index=False)
 
-    npe_info = {float(load_npe(p).info.get("noise_level", np.nan)): load_npe(p).info for p in npe_models}
+    npe_info = {float(info.get("noise_level", np.nan)): info for info in (load_npe(p).info for p in npe_models)}
     inv_seconds = _losses_seconds(list(invaert_losses))
     summary = []
     for (m, d), grp in table.groupby(["method", "noise_level"], sort=False):

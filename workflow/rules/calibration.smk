@@ -72,10 +72,10 @@ rule calibration_summary:
     input:
         code=code_for("cvsim6.calibration_study:calibration_summary"),
         samples=expand(
-            f"{CALIBRATION}/samples_delta{{delta}}.npz", delta=calibration_deltas()
+            f"{CALIBRATION}/samples_delta{{delta}}.npz", delta=noise_tags("ehr")
         ),
         npe_models=expand(
-            f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt", delta=calibration_deltas()
+            f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt", delta=noise_tags("ehr")
         ),
         invaert_losses=invaert_training_losses,
     output:
@@ -173,13 +173,13 @@ rule ehr_error_methods:
         code=code_for("cvsim6.ehr_methods:ehr_error_methods"),
         patients=rules.ehr_patients.output.patients,
         emulated=expand(
-            f"{NET_EHR}/predictions_delta{{delta}}.parquet", delta=calibration_deltas()
+            f"{NET_EHR}/predictions_delta{{delta}}.parquet", delta=noise_tags("ehr")
         ),
         invaert_simulated=expand(
-            rules.simulate_ehr_predictions.output.simulated, delta=calibration_deltas()
+            rules.simulate_ehr_predictions.output.simulated, delta=noise_tags("ehr")
         ),
         npe_simulated=expand(
-            rules.invert_ehr_npe.output.npe_predictions, delta=calibration_deltas()
+            rules.invert_ehr_npe.output.npe_predictions, delta=noise_tags("ehr")
         ),
     output:
         csv=f"{NET_TABLES}/ehr_error_methods.csv",
@@ -205,4 +205,4 @@ rule calibration:
     input:
         rules.calibration_summary.output,
         rules.ehr_error_methods.output,
-        expand(rules.train_npe.output.figure, delta=calibration_deltas()),
+        expand(rules.train_npe.output.figure, delta=noise_tags("ehr")),

@@ -121,11 +121,6 @@ def scorecard_files(source):
     )
 
 
-def calibration_deltas():
-    """File tags of the EHR study's noise levels (one NPE and one calibration run each)."""
-    return noise_tags("ehr")
-
-
 def calibration_figure_delta():
     """Noise level tag of the rank and recovery figures (ehr_study.figure_noise_level)."""
     return noise_tag(config["ehr_study"]["figure_noise_level"])
@@ -137,5 +132,5 @@ def invaert_training_losses(wildcards=None):
         return []
     return [
         f"{RESULTS}/training/ehr/encoder_decoder_delta{d}_losses.csv"
-        for d in calibration_deltas()
+        for d in noise_tags("ehr")
     ]

@@ -137,8 +137,8 @@ def compare_results(expected: Path, got: Path) -> tuple[list[str], Counter]:
                 pd.testing.assert_frame_equal(pd.read_parquet(a), pd.read_parquet(b), check_exact=True)
             elif ext == ".csv":
                 fa, fb = pd.read_csv(a), pd.read_csv(b)
-                pd.testing.assert_frame_equal(fa.drop(columns=["seconds"], errors="ignore"),
-                                              fb.drop(columns=["seconds"], errors="ignore"), check_exact=True)
+                pd.testing.assert_frame_equal(fa.drop(columns=["seconds", "cpu_seconds"], errors="ignore"),
+                                              fb.drop(columns=["seconds", "cpu_seconds"], errors="ignore"), check_exact=True)
             elif ext in (".md", ".txt", ".tsv"):
                 assert a.read_text() == b.read_text(), "text differs"
             elif ext == ".json":

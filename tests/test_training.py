@@ -59,7 +59,7 @@ def test_emulator_trains(emulator, data):
     d, res = emulator
     assert res["completed"] and res["epochs_done"] == EMU["epochs"]
     df = pd.read_csv(d / "emulator.csv")
-    assert list(df.columns) == ["epoch", "train_loss", "test_loss", "lr", "seconds"]
+    assert list(df.columns) == ["epoch", "train_loss", "test_loss", "lr", "seconds", "cpu_seconds"]
     assert df["epoch"].tolist() == list(range(1, EMU["epochs"] + 1))
     assert df["test_loss"].iloc[-1] < 0.25 * df["test_loss"].iloc[0]
     assert df["train_loss"].iloc[-1] < 0.25 * df["train_loss"].iloc[0]
@@ -145,7 +145,7 @@ def _stages(noise_level):
     g = torch.Generator().manual_seed(0)
     cpu = torch.device("cpu")
     return (tr.FlowStage(flow, y, y[:10], noise_level, g, cpu),
-            tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], noise_level, dict(ENCDEC, reduction="sum"), g, cpu),
+            tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], noise_level, tr.check_hyper("encoder_decoder", dict(ENCDEC, reduction="sum")), g, cpu),
             tr.EmulatorStage(emu, v, y, v[:10], y[:10], cpu))
 
 
@@ -198,9 +198,16 @@ class _Killed(RuntimeError):
     pass
 
 
+#: The step schedule evaluating every epoch, and the cosine schedule keeping the best weights
+#: of an evaluation every second epoch (the best weights travel in the checkpoint).
+_SCHEDULES = {"step": {}, "cosine-best": {"lr_schedule": "cosine", "warmup_epochs": 2, "keep_best": True,
+                                          "eval_every": 2, "lr_final": 0.05}}
+
+
+@pytest.mark.parametrize("schedule", sorted(_SCHEDULES))
 @pytest.mark.parametrize("stage", ["emulator", "flow", "encoder_decoder"])
-def test_resume_after_kill_gives_identical_weights(stage, data, emulator, tmp_path, monkeypatch):
-    hyper = {"emulator": EMU, "flow": FLOW, "encoder_decoder": ENCDEC}[stage] | {"epochs": 7}
+def test_resume_after_kill_gives_identical_weights(stage, schedule, data, emulator, tmp_path, monkeypatch):
+    hyper = {"emulator": EMU, "flow": FLOW, "encoder_decoder": ENCDEC}[stage] | {"epochs": 7} | _SCHEDULES[schedule]
     fn = {"emulator": tr.train_emulator, "flow": tr.train_flow, "encoder_decoder": tr.train_encoder_decoder}[stage]
     extra = {} if stage == "emulator" else {"noise_level": 0.5}
     if stage == "encoder_decoder":
@@ -241,8 +248,8 @@ def test_resume_after_kill_gives_identical_weights(stage, data, emulator, tmp_pa
     assert torch.load(tmp_path / "killed" / "m.pt.ckpt", weights_only=True)["epoch"] == 4
     assert run(tmp_path / "killed")["completed"]
     _assert_same_weights(tmp_path / "full" / "m.pt", tmp_path / "killed" / "m.pt")
-    a = pd.read_csv(tmp_path / "full" / "m.csv").drop(columns="seconds")
-    b = pd.read_csv(tmp_path / "killed" / "m.csv").drop(columns="seconds")
+    a = pd.read_csv(tmp_path / "full" / "m.csv").drop(columns=["seconds", "cpu_seconds"])
+    b = pd.read_csv(tmp_path / "killed" / "m.csv").drop(columns=["seconds", "cpu_seconds"])
     pd.testing.assert_frame_equal(a, b)
 
     # 3) a finished run rerun with the same arguments only re-writes the outputs
@@ -277,8 +284,132 @@ def test_hyper_validation():
         tr.check_hyper("flow", FLOW | {"hiden": 3})
     with pytest.raises(ValueError, match="reduction"):
         tr.check_hyper("encoder_decoder", ENCDEC | {"reduction": "max"})
+    with pytest.raises(ValueError, match="lr_step"):
+        tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr_step"})
+    with pytest.raises(ValueError, match="reeval_target"):
+        tr.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": "exact"})
+    with pytest.raises(ValueError, match="dtype"):
+        tr.check_hyper("emulator", EMU | {"dtype": "float16"})
+    with pytest.raises(ValueError, match="warmup_epochs"):
+        tr.check_hyper("emulator", EMU | {"lr_schedule": "cosine", "warmup_epochs": EMU["epochs"]})
     h = tr.check_hyper("emulator", EMU)
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
+    assert h["lr_schedule"] == "step" and h["eval_every"] == 1 and not h["keep_best"] and h["dtype"] == "float32"
+    # the cosine schedule needs no step parameters
+    cos = {k: v for k, v in EMU.items() if k not in ("lr_step", "lr_gamma")} | {"lr_schedule": "cosine"}
+    assert tr.check_hyper("emulator", cos)["lr_schedule"] == "cosine"
+
+
+# ----------------------------------------------------------------------------- schedules and options
+def test_cosine_schedule_learning_rates(data, tmp_path):
+    h = {k: v for k, v in EMU.items() if k not in ("lr_step", "lr_gamma")}
+    h |= {"epochs": 12, "lr_schedule": "cosine", "warmup_epochs": 3, "lr_final": 0.1}
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=h, seed=0, device="cpu", progress=False,
+                      **_paths(tmp_path, "m"))
+    lr = pd.read_csv(tmp_path / "m.csv")["lr"].to_numpy() / h["lr"]
+    # linear warm-up to the full rate, then a cosine from 1 down to lr_final in the last epoch
+    np.testing.assert_allclose(lr[:4], [0.25, 0.5, 0.75, 1.0], rtol=1e-12)
+    np.testing.assert_allclose(lr[7], 0.1 + 0.9 * 0.5, rtol=1e-12)  # half-way: t = (7 - 3) / 8
+    np.testing.assert_allclose(lr[-1], 0.1, rtol=1e-12)
+    assert np.all(np.diff(lr[3:]) < 0)
+
+
+def _emulator_test_mse(model_path, test_path):
+    """Held-out MSE of a saved emulator in its standardized output space (the training's test loss)."""
+    from cvsim6.datasets import load_split
+
+    net = nw.load_model(model_path)
+    v, y = load_split(str(test_path))
+    with torch.no_grad():
+        pred = net(net.x_scaler.transform(torch.tensor(v, dtype=torch.float32)))
+        return float(nw.emulator_loss(pred, net.y_scaler.transform(torch.tensor(y, dtype=torch.float32))))
+
+
+@pytest.mark.parametrize("keep_best", [True, False])
+def test_eval_every_and_keep_best(keep_best, data, tmp_path):
+    # a rate high enough that the held-out loss is not monotone over the epochs
+    h = EMU | {"epochs": 15, "eval_every": 3, "keep_best": keep_best, "lr": 0.1, "lr_step": 100}
+    res = tr.train_emulator(str(data[0]), str(data[1]), hyper=h, seed=4, device="cpu", progress=False,
+                            **_paths(tmp_path, "m"))
+    df = pd.read_csv(tmp_path / "m.csv")
+    tested = df[np.isfinite(df["test_loss"])]
+    assert tested["epoch"].tolist() == [3, 6, 9, 12, 15]  # every 3rd (and always the last)
+    assert np.isfinite(df["train_loss"]).all() and (df["cpu_seconds"] > 0).all()
+    best = tested.loc[tested["test_loss"].idxmin()]
+    assert best["epoch"] != 15, "the test needs a run whose last evaluation is not its best"
+    _, info = nw.load_model(tmp_path / "m.pt", with_info=True)
+    saved = _emulator_test_mse(tmp_path / "m.pt", data[1])
+    expected = best if keep_best else tested.iloc[-1]
+    np.testing.assert_allclose(saved, expected["test_loss"], rtol=1e-5)
+    assert res["test_loss"] == pytest.approx(expected["test_loss"], rel=1e-12)
+    assert info["best_epoch"] == int(expected["epoch"])
+
+
+def test_clean_reevaluation_target():
+    rng = np.random.default_rng(6)
+    v, y = rng.normal(size=(300, 23)), rng.normal(size=(300, 16))
+    emu = nw.Emulator(hidden=8, layers=2)
+    stages = {}
+    for target in ("clean", "noisy"):
+        torch.manual_seed(0)
+        encdec = nw.EncoderDecoder(latent_dim=3, encoder_hidden=8, encoder_layers=2, decoder_hidden=8,
+                                   decoder_layers=2)
+        h = tr.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": target, "beta_r": 1.0})
+        st = tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], 2.0, h, torch.Generator().manual_seed(1),
+                                    torch.device("cpu"))
+        st.begin_epoch(torch.Generator().manual_seed(2))
+        stages[target] = st
+    idx = torch.arange(64)
+    for target, st in stages.items():
+        with torch.no_grad():
+            _, parts = st.batch_loss(idx)
+            v_hat = st.model(st.v_tr[idx], st.y_epoch[idx], st.eps_epoch[idx])[0]
+            want = st.y_tr[idx] if target == "clean" else st.y_epoch[idx]
+            ref = ((st.reevaluate(v_hat) - want) ** 2).sum(dim=1).mean()  # reduction "sum"
+            np.testing.assert_allclose(float(parts["reeval"]), float(ref), rtol=1e-6)
+    # same decoder input y' and decoder term: only the re-evaluation target differs
+    assert torch.equal(stages["clean"].y_epoch, stages["noisy"].y_epoch)
+    with torch.no_grad():
+        dc = stages["clean"].batch_loss(idx)[1]
+        dn = stages["noisy"].batch_loss(idx)[1]
+    assert float(dc["decoder"]) == float(dn["decoder"]) and float(dc["reeval"]) < float(dn["reeval"])
+
+
+@pytest.mark.parametrize("delta", [0.0, 1.5])
+def test_noisy_scaling_widens_the_output_standardizer(delta, data, emulator, tmp_path):
+    from cvsim6.datasets import load_split
+
+    _, y_tr = load_split(str(data[0]))
+    clean_std = y_tr.std(axis=0)
+    kw = dict(seed=0, device="cpu", progress=False, noise_level=delta)
+    tr.train_flow(str(data[0]), str(data[1]), hyper=FLOW | {"epochs": 2, "noisy_scaling": True},
+                  **_paths(tmp_path, "f"), **kw)
+    tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                             hyper=ENCDEC | {"epochs": 2, "noisy_scaling": True}, **_paths(tmp_path, "e"), **kw)
+    want = np.sqrt(clean_std ** 2 + (delta * noise_std()) ** 2)
+    for name in ("f", "e"):
+        net = nw.load_model(tmp_path / f"{name}.pt")
+        np.testing.assert_allclose(net.y_scaler.std.double().numpy(), want, rtol=1e-6)
+    # the encoder/decoder's re-evaluation converts between its scaling and the emulator's exactly
+    encdec, emu = nw.load_model(tmp_path / "e.pt"), nw.load_model(emulator[0] / "emulator.pt")
+    v_std = torch.randn(50, 23)
+    with torch.no_grad():
+        y_model = encdec.y_scaler.inverse(nw.make_reevaluator(emu, encdec)(v_std))
+        y_emu = emu.predict(encdec.x_scaler.inverse(v_std))
+    np.testing.assert_allclose(y_model.numpy(), y_emu.numpy(), rtol=1e-4, atol=1e-3)
+
+
+def test_float64_follows_the_float32_run(data, tmp_path):
+    kw = dict(seed=5, device="cpu", progress=False)
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 3}, **_paths(tmp_path, "s"), **kw)
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 3, "dtype": "float64"},
+                      **_paths(tmp_path, "d"), **kw)
+    single, double = _state(tmp_path / "s.pt"), _state(tmp_path / "d.pt")
+    assert all(v.dtype == torch.float64 for k, v in double.items() if k.startswith("net."))
+    for k in single:  # same initial weights, batches and updates: equal to float32 round-off
+        np.testing.assert_allclose(double[k].double().numpy(), single[k].double().numpy(), rtol=1e-3, atol=1e-4)
+    a, b = pd.read_csv(tmp_path / "s.csv"), pd.read_csv(tmp_path / "d.csv")
+    np.testing.assert_allclose(b["test_loss"], a["test_loss"], rtol=1e-3)
 
 
 def test_resolve_device():

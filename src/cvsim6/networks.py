@@ -418,12 +418,14 @@ def squared_error(a: torch.Tensor, b: torch.Tensor, reduction: str = "sum") -> t
 
 def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torch.Tensor,
                          eps: torch.Tensor, reevaluate: Callable[[torch.Tensor], torch.Tensor] | None,
-                         beta_d: float, beta_v: float, beta_r: float, reduction: str = "sum"):
+                         beta_d: float, beta_v: float, beta_r: float, reduction: str = "sum",
+                         y_target_std: torch.Tensor | None = None):
     """Encoder/decoder loss of the paper, means over the minibatch.
 
     ``beta_d * E||v - NN_d(y', w)||^2 + beta_v * E[1/2 sum_k(mu^2 + sigma^2 - log sigma^2 - 1)]
     + beta_r * E||y' - NN_e(NN_d(y', w))||^2`` with ``w = mu + eps * sigma``. ``y_std`` is the
-    (noisy) standardized y'; ``eps`` (N, latent) standard normal; ``reevaluate`` maps decoded
+    (noisy) standardized y'; ``y_target_std`` replaces y' as the re-evaluation target when
+    given (the clean y, as in the paper's public code); ``eps`` (N, latent) standard normal; ``reevaluate`` maps decoded
     standardized v to standardized y through the frozen emulator (None or beta_r == 0 skips it).
     ``reduction`` applies to the two squared-error terms (see :func:`squared_error`); the KL
     term is always summed over latent dimensions. Returns ``(total, parts)`` where ``parts`` has
@@ -434,7 +436,7 @@ def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torc
     kl = kl_divergence(mu, logvar)
     total = beta_d * dec + beta_v * kl
     if reevaluate is not None and beta_r != 0:
-        rec = squared_error(reevaluate(v_hat), y_std, reduction)
+        rec = squared_error(reevaluate(v_hat), y_std if y_target_std is None else y_target_std, reduction)
         total = total + beta_r * rec
     else:
         rec = torch.zeros((), device=v_std.device, dtype=v_std.dtype)

@@ -9,18 +9,28 @@ Entry points (all paths are strings; datasets are Parquet splits with the 23 par
 
 ``hyper`` keys
 --------------
-Common (required): ``epochs`` (int), ``batch_size`` (int), ``lr`` (initial Adam learning
-rate), ``lr_step`` (epochs per StepLR decay), ``lr_gamma`` (decay factor).
-Common (optional): ``weight_decay`` (Adam L2 penalty, default 0), ``grad_clip`` (max global
-gradient norm, 0 = off, default 0; the paper's code clips the structural flow at 10).
+Common (required): ``epochs`` (int), ``batch_size`` (int), ``lr`` (initial Adam learning rate).
+Common (optional): ``lr_schedule`` ("step", default: StepLR with ``lr_step`` epochs per decay
+by ``lr_gamma``, both then required; "cosine": linear warm-up over ``warmup_epochs`` (default
+0), then a cosine down to ``lr * lr_final`` (default 0) in the last epoch), ``weight_decay``
+(Adam L2 penalty, default 0), ``grad_clip`` (max global gradient norm, 0 = off, default 0; the
+paper's code clips the structural flow at 10), ``eval_every`` (epochs between test-loss
+evaluations, default 1; the last epoch is always evaluated), ``keep_best`` (save the weights of
+the evaluation with the lowest test loss, default False: the last epoch's), ``dtype``
+("float32", default, or "float64", as the paper's code).
 
 * emulator: ``hidden``, ``layers`` (Linear layers in total); optional ``activation`` ("silu").
 * flow: ``hidden``, ``blocks``, ``layers_per_block`` (Linear layers per s/t net, paper 4),
-  ``batchnorm`` (bool).
+  ``batchnorm`` (bool); optional ``noisy_scaling`` (see below).
 * encoder_decoder: ``latent_dim``, ``encoder_hidden``, ``encoder_layers``, ``decoder_hidden``,
   ``decoder_layers``, ``beta_d``, ``beta_v``, ``beta_r``; optional ``reduction`` ("sum":
   per-sample squared norms averaged over the batch, the paper's equation; "mse": mean over
-  batch and components, the paper's public code), ``activation`` ("silu").
+  batch and components, the paper's public code), ``activation`` ("silu"), ``reeval_target``
+  ("noisy", default: the re-evaluation term compares NN_e(NN_d(y', w)) with the noisy y';
+  "clean": with the clean y, as the paper's public code), ``noisy_scaling``.
+* ``noisy_scaling`` (flow, encoder/decoder; default False): standardize the outputs with the
+  std of the noisy outputs, ``sqrt(std^2 + (delta*s)^2)`` (the paper's public code), instead of
+  the clean training outputs' std.
 
 Unknown keys raise ``ValueError``.
 
@@ -37,11 +47,12 @@ Training procedure
   CPU for a fixed thread count.
 * Minibatches: whole tensors on the device, indexed by a permutation; a trailing batch of a
   single sample is dropped (BatchNorm needs two).
-* Adam (``fused=True`` when supported) + StepLR stepped once per epoch.
+* Adam (``fused=True`` when supported) + the learning-rate schedule stepped once per epoch.
 * Losses CSV columns: ``epoch`` (1-based), ``train_loss`` (sample-weighted mean over the
-  epoch's minibatches, in train mode), ``test_loss`` (eval mode, full test split), ``lr``
-  (learning rate used in that epoch), ``seconds`` (wall time of that epoch), then per-term
-  columns for the encoder/decoder (unweighted ``decoder``, ``kl``, ``reeval`` terms).
+  epoch's minibatches, in train mode), ``test_loss`` (eval mode, full test split; empty in
+  epochs not evaluated), ``lr`` (learning rate used in that epoch), ``seconds`` and ``cpu_seconds``
+  (wall and process CPU time of that epoch), then per-term columns for the encoder/decoder
+  (unweighted ``decoder``, ``kl``, ``reeval`` terms).
 * Checkpoints (model, optimizer, scheduler, RNG states, history, epoch) every
   ``checkpoint_every`` epochs and at the end, written atomically to ``checkpoint`` (default
   ``model + ".ckpt"``). A rerun with the same arguments resumes from it and yields the same
@@ -71,15 +82,20 @@ from .registry import noise_std
 
 log = logging.getLogger(__name__)
 
-_COMMON_REQUIRED = ("epochs", "batch_size", "lr", "lr_step", "lr_gamma")
-_COMMON_OPTIONAL = {"weight_decay": 0.0, "grad_clip": 0.0}
+_COMMON_REQUIRED = ("epochs", "batch_size", "lr")
+_COMMON_OPTIONAL = {"weight_decay": 0.0, "grad_clip": 0.0, "lr_schedule": "step", "lr_step": None,
+                    "lr_gamma": None, "warmup_epochs": 0, "lr_final": 0.0, "eval_every": 1,
+                    "keep_best": False, "dtype": "float32"}
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
 HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
     "emulator": (_COMMON_REQUIRED + ("hidden", "layers"), {**_COMMON_OPTIONAL, "activation": "silu"}),
-    "flow": (_COMMON_REQUIRED + ("hidden", "blocks", "layers_per_block", "batchnorm"), dict(_COMMON_OPTIONAL)),
+    "flow": (_COMMON_REQUIRED + ("hidden", "blocks", "layers_per_block", "batchnorm"),
+             {**_COMMON_OPTIONAL, "noisy_scaling": False}),
     "encoder_decoder": (
         _COMMON_REQUIRED + ("latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                             "decoder_layers", "beta_d", "beta_v", "beta_r"),
-        {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu"},
+        {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu", "reeval_target": "noisy",
+         "noisy_scaling": False},
     ),
 }
 _EVAL_CHUNK = 65536
@@ -94,11 +110,24 @@ def check_hyper(stage: str, hyper: dict) -> dict:
     if missing or unknown:
         raise ValueError(f"{stage} hyperparameters: missing {missing}, unknown {unknown}")
     h = {**optional, **hyper}
-    for k in ("epochs", "batch_size", "lr_step"):
+    if h["lr_schedule"] not in ("step", "cosine"):
+        raise ValueError(f"{stage} hyperparameter lr_schedule must be 'step' or 'cosine', got {h['lr_schedule']!r}")
+    if h["lr_schedule"] == "step" and (h["lr_step"] is None or h["lr_gamma"] is None):
+        raise ValueError(f"{stage}: lr_schedule 'step' needs lr_step and lr_gamma, got {h['lr_step']!r}, {h['lr_gamma']!r}")
+    if h["dtype"] not in _DTYPES:
+        raise ValueError(f"{stage} hyperparameter dtype must be one of {sorted(_DTYPES)}, got {h['dtype']!r}")
+    positive = ["epochs", "batch_size", "eval_every"] + (["lr_step"] if h["lr_schedule"] == "step" else [])
+    for k in positive:
         if int(h[k]) != h[k] or h[k] < 1:
             raise ValueError(f"{stage} hyperparameter {k} must be a positive integer, got {h[k]!r}")
+    if int(h["warmup_epochs"]) != h["warmup_epochs"] or not 0 <= h["warmup_epochs"] < h["epochs"]:
+        raise ValueError(f"{stage} hyperparameter warmup_epochs must be an integer in [0, epochs), got {h['warmup_epochs']!r}")
+    if not 0.0 <= float(h["lr_final"]) <= 1.0:
+        raise ValueError(f"{stage} hyperparameter lr_final must be in [0, 1], got {h['lr_final']!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")
+    if stage == "encoder_decoder" and h["reeval_target"] not in ("noisy", "clean"):
+        raise ValueError(f"reeval_target must be 'noisy' or 'clean', got {h['reeval_target']!r}")
     return h
 
 
@@ -116,6 +145,23 @@ def make_optimizer(params, lr: float, weight_decay: float, device: torch.device)
         return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=True)
     except (RuntimeError, TypeError, ValueError):
         return torch.optim.Adam(params, lr=lr, weight_decay=weight_decay)
+
+
+def make_scheduler(opt: torch.optim.Optimizer, hyper: dict) -> torch.optim.lr_scheduler.LRScheduler:
+    """Learning-rate schedule stepped once per epoch. ``"step"``: StepLR (``lr_step``,
+    ``lr_gamma``). ``"cosine"``: linear warm-up over ``warmup_epochs`` epochs, then a cosine
+    from ``lr`` down to ``lr * lr_final`` in the last epoch."""
+    if hyper["lr_schedule"] == "step":
+        return torch.optim.lr_scheduler.StepLR(opt, step_size=int(hyper["lr_step"]), gamma=float(hyper["lr_gamma"]))
+    warm, total, final = int(hyper["warmup_epochs"]), int(hyper["epochs"]), float(hyper["lr_final"])
+
+    def factor(epoch: int) -> float:  # epoch = epochs completed before this one
+        if epoch < warm:
+            return (epoch + 1) / (warm + 1)
+        t = min(1.0, (epoch - warm) / max(1, total - warm - 1))
+        return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+    return torch.optim.lr_scheduler.LambdaLR(opt, factor)
 
 
 def derived_seed(seed: int, stream: int) -> int:
@@ -136,8 +182,8 @@ def _file_digest(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def _to_device(a: np.ndarray | torch.Tensor, device: torch.device) -> torch.Tensor:
-    return torch.as_tensor(a).to(dtype=torch.float32).to(device)
+def _to_device(a: np.ndarray | torch.Tensor, device: torch.device, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    return torch.as_tensor(a).to(dtype=dtype).to(device)
 
 
 def _std_noise(n: int, noise_level: float, generator: torch.Generator, y_std_scale: torch.Tensor) -> torch.Tensor | None:
@@ -155,8 +201,12 @@ class _Stage:
     parts: tuple[str, ...] = ()
     model: nn.Module
 
-    def __init__(self, n_train: int, device: torch.device):
-        self.n_train, self.device = n_train, device
+    def __init__(self, n_train: int, device: torch.device, dtype: torch.dtype = torch.float32):
+        self.n_train, self.device, self.dtype = n_train, device, dtype
+
+    def tensor(self, a) -> torch.Tensor:
+        """``a`` on the stage's device in its dtype."""
+        return _to_device(a, self.device, self.dtype)
 
     def begin_epoch(self, generator: torch.Generator) -> None:
         """Draw this epoch's random inputs (noise, eps) from ``generator``."""
@@ -185,11 +235,11 @@ class EmulatorStage(_Stage):
 
     name = "emulator"
 
-    def __init__(self, model: nw.Emulator, v_tr, y_tr, v_te, y_te, device):
-        super().__init__(len(v_tr), device)
+    def __init__(self, model: nw.Emulator, v_tr, y_tr, v_te, y_te, device, dtype=torch.float32):
+        super().__init__(len(v_tr), device, dtype)
         self.model = model
-        self.v_tr, self.y_tr = _to_device(v_tr, device), _to_device(y_tr, device)
-        self.v_te, self.y_te = _to_device(v_te, device), _to_device(y_te, device)
+        self.v_tr, self.y_tr = self.tensor(v_tr), self.tensor(y_tr)
+        self.v_te, self.y_te = self.tensor(v_te), self.tensor(y_te)
         self.y_epoch = self.y_tr  # targets of the current epoch: always the clean data
 
     def batch_loss(self, idx):
@@ -205,18 +255,19 @@ class FlowStage(_Stage):
 
     name = "flow"
 
-    def __init__(self, model: nw.RealNVP, y_tr, y_te, noise_level: float, test_generator, device):
-        super().__init__(len(y_tr), device)
+    def __init__(self, model: nw.RealNVP, y_tr, y_te, noise_level: float, test_generator, device,
+                 dtype=torch.float32):
+        super().__init__(len(y_tr), device, dtype)
         self.model, self.noise_level = model, float(noise_level)
         self.scale = model.y_scaler.std.detach().double().cpu()
-        self.y_tr = _to_device(y_tr, device)
+        self.y_tr = self.tensor(y_tr)
         self.y_epoch = self.y_tr
         noise = _std_noise(len(y_te), self.noise_level, test_generator, self.scale)
-        self.y_te = _to_device(y_te if noise is None else torch.as_tensor(y_te) + noise, device)
+        self.y_te = self.tensor(y_te if noise is None else torch.as_tensor(y_te) + noise)
 
     def begin_epoch(self, generator):
         noise = _std_noise(self.n_train, self.noise_level, generator, self.scale)
-        self.y_epoch = self.y_tr if noise is None else self.y_tr + _to_device(noise, self.device)
+        self.y_epoch = self.y_tr if noise is None else self.y_tr + self.tensor(noise)
 
     def batch_loss(self, idx):
         return nw.flow_nll(self.model, self.y_epoch[idx]), {}
@@ -227,47 +278,52 @@ class FlowStage(_Stage):
 
 
 class EncoderDecoderStage(_Stage):
-    """Encoder/decoder loss with noisy y' (decoder input and re-evaluation target)."""
+    """Encoder/decoder loss with noisy y' as the decoder's input; the re-evaluation term
+    compares the emulator's output with y' (``reeval_target`` "noisy") or with the clean y
+    ("clean", as the paper's public code)."""
 
     name = "encoder_decoder"
     parts = ("decoder", "kl", "reeval")
 
     def __init__(self, model: nw.EncoderDecoder, emulator: nw.Emulator, v_tr, y_tr, v_te, y_te,
-                 noise_level: float, hyper: dict, test_generator, device):
-        super().__init__(len(v_tr), device)
+                 noise_level: float, hyper: dict, test_generator, device, dtype=torch.float32):
+        super().__init__(len(v_tr), device, dtype)
         self.model, self.noise_level = model, float(noise_level)
         self.emulator = emulator
         self.reevaluate = nw.make_reevaluator(emulator, model)
         self.betas = (float(hyper["beta_d"]), float(hyper["beta_v"]), float(hyper["beta_r"]))
         self.reduction = hyper["reduction"]
+        self.clean_target = hyper["reeval_target"] == "clean"
         self.latent = model.latent_dim
         self.scale = model.y_scaler.std.detach().double().cpu()
-        self.v_tr, self.y_tr = _to_device(v_tr, device), _to_device(y_tr, device)
-        self.v_te = _to_device(v_te, device)
+        self.v_tr, self.y_tr = self.tensor(v_tr), self.tensor(y_tr)
+        self.v_te, self.y_te_clean = self.tensor(v_te), self.tensor(y_te)
         noise = _std_noise(len(y_te), self.noise_level, test_generator, self.scale)
-        self.y_te = _to_device(y_te if noise is None else torch.as_tensor(y_te) + noise, device)
-        self.eps_te = _to_device(torch.randn(len(v_te), self.latent, generator=test_generator), device)
+        self.y_te = self.tensor(y_te if noise is None else torch.as_tensor(y_te) + noise)
+        self.eps_te = self.tensor(torch.randn(len(v_te), self.latent, generator=test_generator))
         self.y_epoch, self.eps_epoch = self.y_tr, None
 
     def begin_epoch(self, generator):
         noise = _std_noise(self.n_train, self.noise_level, generator, self.scale)
-        self.y_epoch = self.y_tr if noise is None else self.y_tr + _to_device(noise, self.device)
-        self.eps_epoch = _to_device(torch.randn(self.n_train, self.latent, generator=generator), self.device)
+        self.y_epoch = self.y_tr if noise is None else self.y_tr + self.tensor(noise)
+        self.eps_epoch = self.tensor(torch.randn(self.n_train, self.latent, generator=generator))
 
-    def _loss(self, v, y, eps):
-        return nw.encoder_decoder_loss(self.model, v, y, eps, self.reevaluate, *self.betas, reduction=self.reduction)
+    def _loss(self, v, y, eps, y_clean):
+        return nw.encoder_decoder_loss(self.model, v, y, eps, self.reevaluate, *self.betas, reduction=self.reduction,
+                                       y_target_std=y_clean if self.clean_target else None)
 
     def batch_loss(self, idx):
-        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx])
+        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx])
 
     @torch.no_grad()
     def evaluate(self):
-        return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s]))
+        return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s],
+                                                                  self.y_te_clean[s]))
 
 
 # ----------------------------------------------------------------------------- outputs
 def _columns(stage: _Stage) -> list[str]:
-    cols = ["epoch", "train_loss", "test_loss", "lr", "seconds"]
+    cols = ["epoch", "train_loss", "test_loss", "lr", "seconds", "cpu_seconds"]
     cols += [f"train_{p}" for p in stage.parts] + [f"test_{p}" for p in stage.parts]
     return cols
 
@@ -279,7 +335,7 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
         if mode == "w":
             w.writeheader()
         for r in rows:
-            w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) for k in columns})
+            w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) if k in r else "" for k in columns})
 
 
 def _log_axis(ax, values: np.ndarray) -> None:
@@ -305,7 +361,8 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     fig, axes = plt.subplots(1, 2 if parts else 1, figsize=(12 if parts else 7, 4.5), squeeze=False)
     ax = axes[0, 0]
     ax.plot(df["epoch"], df["train_loss"], label="train", lw=1.2)
-    ax.plot(df["epoch"], df["test_loss"], label="test", lw=1.2)
+    tested = df[np.isfinite(df["test_loss"])]
+    ax.plot(tested["epoch"], tested["test_loss"], label="test", lw=1.2, marker="." if len(tested) < 50 else None)
     vals = np.concatenate([df["train_loss"].to_numpy(), df["test_loss"].to_numpy()])
     vals = vals[np.isfinite(vals)]
     if vals.size and (vals > 0).all():
@@ -324,7 +381,7 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
         for i, p in enumerate(parts):
             color = f"C{i}"
             ax2.plot(df["epoch"], df[f"train_{p}"], color=color, lw=1.2, label=f"{p} (train)")
-            ax2.plot(df["epoch"], df[f"test_{p}"], color=color, lw=1.2, ls="--", label=f"{p} (test)")
+            ax2.plot(tested["epoch"], tested[f"test_{p}"], color=color, lw=1.2, ls="--", label=f"{p} (test)")
         pv = df[[f"train_{p}" for p in parts] + [f"test_{p}" for p in parts]].to_numpy().ravel()
         pv = pv[np.isfinite(pv)]
         if pv.size and (pv > 0).all():
@@ -350,15 +407,19 @@ def _save_checkpoint(path: Path, payload: dict) -> None:
 
 def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: str, losses: str,
          figure: str, checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
-         checkpoint_every: int, progress: bool) -> dict:
-    """Train ``stage.model`` (already seeded, built and on the device); see module docstring."""
+         checkpoint_every: int, progress: bool, max_cpu_seconds: float | None = None) -> dict:
+    """Train ``stage.model`` (already seeded, built and on the device); see module docstring.
+    ``max_cpu_seconds`` (benchmarks) stops after the epoch in which the run's CPU time, summed
+    over epochs, reaches it (checkpoint only, as ``max_epochs_this_run``)."""
     from tqdm import tqdm
 
     device = stage.device
     model = stage.model
     params = [p for p in model.parameters() if p.requires_grad]
     opt = make_optimizer(params, float(hyper["lr"]), float(hyper["weight_decay"]), device)
-    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(hyper["lr_step"]), gamma=float(hyper["lr_gamma"]))
+    sched = make_scheduler(opt, hyper)
+    eval_every, keep_best = int(hyper["eval_every"]), bool(hyper["keep_best"])
+    best: dict = {"loss": math.inf, "epoch": 0, "model": None}
     gen = torch.Generator().manual_seed(derived_seed(seed, 1))
     epochs, bs = int(hyper["epochs"]), int(hyper["batch_size"])
     clip = float(hyper["grad_clip"])
@@ -381,6 +442,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             gen.set_state(ck["generator"])
             torch.set_rng_state(ck["torch_rng"])
             history, start = list(ck["history"]), int(ck["epoch"])
+            best = ck.get("best", best)
             log.info("%s: resuming from %s at epoch %d/%d", stage.name, ckpt_path, start, epochs)
         elif ck is not None:
             log.warning("%s: checkpoint %s is from a different run; starting over", stage.name, ckpt_path)
@@ -391,6 +453,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             "fingerprint": fingerprint, "epoch": epoch, "model": model.state_dict(),
             "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
             "generator": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": history,
+            "best": best,
         })
 
     stop = epochs if max_epochs_this_run is None else min(epochs, start + int(max_epochs_this_run))
@@ -399,8 +462,9 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     bounds = [(b, min(n, b + bs)) for b in range(0, n, bs) if min(n, b + bs) - b >= 2 or b < n_full]
     bar = tqdm(total=epochs, initial=start, desc=stage.name, file=sys.stderr, disable=not progress,
                dynamic_ncols=True, mininterval=1.0)
+    cpu_used = sum(float(r.get("cpu_seconds", 0.0)) for r in history)
     for epoch in range(start, stop):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         model.train()
         stage.begin_epoch(gen)
         perm = torch.randperm(n, generator=gen).to(device)
@@ -423,15 +487,20 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             used += k
         sched.step()
         model.eval()
-        test_loss, test_parts = stage.evaluate()
-        row = {"epoch": epoch + 1, "train_loss": float(acc) / used, "test_loss": test_loss, "lr": lr,
-               "seconds": time.perf_counter() - t0}
+        evaluated = (epoch + 1) % eval_every == 0 or epoch + 1 == epochs
+        test_loss, test_parts = stage.evaluate() if evaluated else (math.nan, {})
+        row = {"epoch": epoch + 1, "train_loss": float(acc) / used, "test_loss": test_loss, "lr": lr}
         for p in stage.parts:
             row[f"train_{p}"] = float(acc_parts[p]) / used
-            row[f"test_{p}"] = test_parts[p]
+            row[f"test_{p}"] = test_parts.get(p, math.nan)
+        if keep_best and evaluated and test_loss < best["loss"]:
+            best = {"loss": test_loss, "epoch": epoch + 1,
+                    "model": {k: v.detach().clone() for k, v in model.state_dict().items()}}
+        row["seconds"], row["cpu_seconds"] = time.perf_counter() - t0, time.process_time() - c0
+        cpu_used += row["cpu_seconds"]
         history.append(row)
         _write_rows(losses_path, columns, [row], "a")
-        if not (math.isfinite(row["train_loss"]) and math.isfinite(row["test_loss"])):
+        if not (math.isfinite(row["train_loss"]) and (math.isfinite(test_loss) or not evaluated)):
             bar.close()
             save_ckpt(epoch + 1)
             raise FloatingPointError(f"{stage.name}: non-finite loss at epoch {epoch + 1}: {row}")
@@ -439,17 +508,24 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
         bar.set_postfix_str(f"train={row['train_loss']:.4g} test={test_loss:.4g} lr={lr:.3g}", refresh=False)
         if (epoch + 1) % checkpoint_every == 0 and epoch + 1 < stop:
             save_ckpt(epoch + 1)
+        if max_cpu_seconds is not None and cpu_used >= max_cpu_seconds:
+            break
     bar.close()
     done = len(history)
     save_ckpt(done)
-    result = {"completed": done >= epochs, "epochs_done": done,
+    tested = [r for r in history if math.isfinite(r["test_loss"])]
+    result = {"completed": done >= epochs, "epochs_done": done, "cpu_seconds": cpu_used,
               "train_loss": history[-1]["train_loss"] if history else None,
-              "test_loss": history[-1]["test_loss"] if history else None}
+              "test_loss": tested[-1]["test_loss"] if tested else None}
     if not result["completed"]:
         return result
+    if keep_best and best["model"] is not None:
+        model.load_state_dict(best["model"])
+        result["test_loss"] = best["loss"]
     model.eval()
     info = {**info, "epochs_done": done, "final_train_loss": result["train_loss"],
-            "final_test_loss": result["test_loss"], "device": str(device), "torch": str(torch.__version__)}
+            "final_test_loss": result["test_loss"], "best_epoch": best["epoch"] if keep_best else done,
+            "cpu_seconds": cpu_used, "device": str(device), "torch": str(torch.__version__)}
     nw.save_model(model, model_path, info=info)
     ylabel = {"emulator": "MSE (standardized outputs)", "flow": "negative log-likelihood (nats)",
               "encoder_decoder": "weighted total loss"}.get(stage.name, "loss")
@@ -457,10 +533,21 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     return result
 
 
-def _setup(stage: str, hyper: dict, device: str, threads: int) -> tuple[dict, torch.device]:
+def _setup(stage: str, hyper: dict, device: str, threads: int) -> tuple[dict, torch.device, torch.dtype]:
     h = check_hyper(stage, hyper)
     torch.set_num_threads(int(threads))
-    return h, resolve_device(device)
+    return h, resolve_device(device), _DTYPES[h["dtype"]]
+
+
+def inflate_output_scale(scaler: nw.Standardizer, noise_level: float) -> None:
+    """Widen a fitted output standardizer to the std of the *noisy* outputs,
+    ``sqrt(std^2 + (delta * s)^2)`` per output (s: registry noise std, clinical units), as the
+    paper's public code standardizes in its noisy studies. No change when ``noise_level`` is 0."""
+    if noise_level == 0:
+        return
+    s = torch.as_tensor(noise_std(), dtype=torch.float64) * float(noise_level)
+    with torch.no_grad():
+        scaler.std.copy_(torch.sqrt(scaler.std.double() ** 2 + s ** 2).to(scaler.std))
 
 
 def _fingerprint(**items) -> str:
@@ -471,78 +558,87 @@ def _fingerprint(**items) -> str:
 def train_emulator(train: str, test: str, model: str, losses: str, figure: str, hyper: dict, seed: int,
                    device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                    max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
-                   progress: bool = True) -> dict:
+                   progress: bool = True, max_cpu_seconds: float | None = None) -> dict:
     """Train ``NN_e`` (parameters -> outputs) on clean data; write ``model`` (.pt), ``losses``
     (CSV) and ``figure`` (PNG). ``max_epochs_this_run`` stops early after that many epochs of
     this call (checkpoint only, no model written). Returns a summary dict (``completed``,
     ``epochs_done``, ``train_loss``, ``test_loss``)."""
-    h, dev = _setup("emulator", hyper, device, threads)
+    h, dev, dtype = _setup("emulator", hyper, device, threads)
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
     torch.manual_seed(seed)
     net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"])
     net.x_scaler.fit(v_tr)
     net.y_scaler.fit(y_tr)
-    net.to(dev)
+    net.to(dev, dtype)
     st = EmulatorStage(net, net.x_scaler.transform(v_tr), net.y_scaler.transform(y_tr),
-                       net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev)
+                       net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype)
     fp = _fingerprint(stage="emulator", hyper=h, seed=seed, data=_digest(v_tr, y_tr, v_te, y_te), fmt=nw.FORMAT)
     info = {"stage": "emulator", "hyper": h, "seed": seed, "noise_level": 0.0, "n_train": len(v_tr), "n_test": len(v_te)}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every, progress)
+    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                progress, max_cpu_seconds)
 
 
 def train_flow(train: str, test: str, model: str, losses: str, figure: str, hyper: dict, seed: int,
                noise_level: float = 0.0, device: str = "auto", threads: int = 1, checkpoint: str | None = None,
-               max_epochs_this_run: int | None = None, checkpoint_every: int = 50, progress: bool = True) -> dict:
+               max_epochs_this_run: int | None = None, checkpoint_every: int = 50, progress: bool = True,
+               max_cpu_seconds: float | None = None) -> dict:
     """Train the Real-NVP ``NN_f`` on the outputs with training noise of level ``noise_level``
     (delta, multiplier of the registry noise std). Outputs and return value as
     :func:`train_emulator`."""
-    h, dev = _setup("flow", hyper, device, threads)
+    h, dev, dtype = _setup("flow", hyper, device, threads)
     _, y_tr = load_split(train)
     _, y_te = load_split(test)
     torch.manual_seed(seed)
     net = nw.RealNVP(hidden=h["hidden"], blocks=h["blocks"], layers_per_block=h["layers_per_block"],
                      batchnorm=bool(h["batchnorm"]))
     net.y_scaler.fit(y_tr)
-    net.to(dev)
+    if h["noisy_scaling"]:
+        inflate_output_scale(net.y_scaler, noise_level)
+    net.to(dev, dtype)
     test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
-    st = FlowStage(net, net.y_scaler.transform(y_tr), net.y_scaler.transform(y_te), noise_level, test_gen, dev)
+    st = FlowStage(net, net.y_scaler.transform(y_tr), net.y_scaler.transform(y_te), noise_level, test_gen, dev,
+                   dtype)
     fp = _fingerprint(stage="flow", hyper=h, seed=seed, noise=float(noise_level), data=_digest(y_tr, y_te),
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "flow", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(y_tr), "n_test": len(y_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every, progress)
+    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                progress, max_cpu_seconds)
 
 
 def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str, figure: str,
                           hyper: dict, seed: int, noise_level: float = 0.0, device: str = "auto",
                           threads: int = 1, checkpoint: str | None = None,
                           max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
-                          progress: bool = True) -> dict:
+                          progress: bool = True, max_cpu_seconds: float | None = None) -> dict:
     """Train ``NN_v`` + ``NN_d`` with the re-evaluation term through the frozen emulator file
     ``emulator``; training noise of level ``noise_level`` on y' everywhere. Outputs and return
     value as :func:`train_emulator`."""
-    h, dev = _setup("encoder_decoder", hyper, device, threads)
+    h, dev, dtype = _setup("encoder_decoder", hyper, device, threads)
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
     emu = nw.load_model(emulator, map_location=dev)
     if not isinstance(emu, nw.Emulator):
         raise ValueError(f"{emulator}: expected an emulator model, got {type(emu).__name__}")
-    emu.eval().requires_grad_(False)
+    emu.to(dtype=dtype).eval().requires_grad_(False)
     torch.manual_seed(seed)
     net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
                             encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
                             decoder_layers=h["decoder_layers"], activation=h["activation"])
     net.x_scaler.fit(v_tr)
     net.y_scaler.fit(y_tr)
-    net.to(dev)
+    if h["noisy_scaling"]:
+        inflate_output_scale(net.y_scaler, noise_level)
+    net.to(dev, dtype)
     test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
     st = EncoderDecoderStage(net, emu, net.x_scaler.transform(v_tr), net.y_scaler.transform(y_tr),
                              net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), noise_level, h,
-                             test_gen, dev)
+                             test_gen, dev, dtype)
     fp = _fingerprint(stage="encoder_decoder", hyper=h, seed=seed, noise=float(noise_level),
                       data=_digest(v_tr, y_tr, v_te, y_te), emulator=_file_digest(emulator),
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "encoder_decoder", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(v_tr), "n_test": len(v_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every, progress)
+    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                progress, max_cpu_seconds)

@@ -46,6 +46,13 @@ def code_for(function):
     return _codegraph.module_closure(function.split(":")[0], PACKAGE_DIR)
 
 
+def study_priority(structural, ehr):
+    """Job priority by the ``study`` wildcard. On few cores Snakemake starts the ready job of
+    highest priority first: the structural chain (data -> emulator -> encoder/decoder ->
+    study) is the workflow's longest, so it gets the higher value and starts first."""
+    return lambda wildcards: structural if wildcards.study == "structural" else ehr
+
+
 def ehr_csv(wildcards=None):
     """The EHR CSV: config ehr_data.path if set, else the copy downloaded into resources/."""
     return config["ehr_data"]["path"] or "resources/EHR_dataset.csv"

@@ -21,6 +21,7 @@ rule sample_prior:
         f"{LOGS}/sample_prior/{{study}}.log",
     benchmark:
         f"{BENCHMARKS}/sample_prior/{{study}}.tsv"
+    priority: study_priority(2, 1)
     conda:
         "../envs/cvsim6.yaml"
     threads: 1
@@ -47,6 +48,7 @@ rule simulate_shard:
         f"{LOGS}/simulate_shard/{{study}}_{{scatteritem}}.log",
     benchmark:
         f"{BENCHMARKS}/simulate_shard/{{study}}_{{scatteritem}}.tsv"
+    priority: study_priority(2, 1)
     conda:
         "../envs/cvsim6.yaml"
     threads: 1
@@ -77,6 +79,7 @@ rule gather_study:
         f"{LOGS}/gather_study/{{study}}.log",
     benchmark:
         f"{BENCHMARKS}/gather_study/{{study}}.tsv"
+    priority: study_priority(2, 1)
     conda:
         "../envs/cvsim6.yaml"
     threads: 1

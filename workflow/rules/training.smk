@@ -57,6 +57,7 @@ rule train_emulator:
         f"{LOGS}/train_emulator/{{study}}.log",
     benchmark:
         f"{BENCHMARKS}/train_emulator/{{study}}.tsv"
+    priority: study_priority(3, 2)
     conda:
         "../envs/cvsim6.yaml"
     threads: config["training"]["threads"]
@@ -91,6 +92,7 @@ rule train_flow:
         f"{LOGS}/train_flow/{{study}}_delta{{delta}}.log",
     benchmark:
         f"{BENCHMARKS}/train_flow/{{study}}_delta{{delta}}.tsv"
+    priority: study_priority(1, 0)
     conda:
         "../envs/cvsim6.yaml"
     threads: config["training"]["threads"]
@@ -127,6 +129,7 @@ rule train_encoder_decoder:
         f"{LOGS}/train_encoder_decoder/{{study}}_delta{{delta}}.log",
     benchmark:
         f"{BENCHMARKS}/train_encoder_decoder/{{study}}_delta{{delta}}.tsv"
+    priority: study_priority(3, 1)
     conda:
         "../envs/cvsim6.yaml"
     threads: config["training"]["threads"]

@@ -1,0 +1,141 @@
+"""Benchmark: held-out error reached against CPU seconds, our schedule vs the paper's.
+
+For one study and one network, trains the same architecture on the same data from the same
+seed under several schedules, each for the same CPU-time budget (one thread per process,
+``--jobs`` processes side by side), and prints the held-out error each reached at fractions of
+the budget. Schedules: ``ours`` (config/config.yaml), ``paper`` (config/paper.yaml, cut off
+at the budget, so its learning rate has decayed less), and any ``--variant NAME='{yaml}'``
+(keys merged onto ``ours``, e.g. a cosine schedule or float64).
+
+Held-out error: the loss on the test split (12,500 rows, never trained on), per network --
+emulator: MSE of the standardized outputs; flow: negative log-likelihood (nats); encoder/decoder:
+the unweighted decoder term (MSE of the standardized parameters). The encoder/decoder trains
+through a fixed emulator file (``--emulator``, default the workflow's).
+
+    .venv/bin/python benchmarks/training.py --study structural --network emulator --seconds 600 \
+        --variant 'cosine={lr_schedule: cosine, warmup_epochs: 20, lr_final: 0.0}'
+
+Writes ``benchmarks/results/training_<study>_<network>[_delta<d>].csv`` (one row per epoch
+and schedule) and a PNG of the curves beside it.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing as mp
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+METRIC = {"emulator": ("test_loss", "held-out MSE (standardized outputs)"),
+          "flow": ("test_loss", "held-out NLL (nats)"),
+          "encoder_decoder": ("test_decoder", "held-out decoder MSE (standardized parameters)")}
+
+
+def schedule(config_file: Path, study: str, network: str) -> dict:
+    """Hyperparameters of ``network`` in ``study`` from a workflow config file."""
+    return dict(yaml.safe_load(config_file.read_text())["training"]["studies"][study][network])
+
+
+def _run(job: tuple) -> pd.DataFrame:
+    from cvsim6 import training
+
+    name, study, network, hyper, seconds, seed, delta, emulator = job
+    data = ROOT / "results" / "data" / study
+    with tempfile.TemporaryDirectory() as tmp:
+        out = {k: str(Path(tmp) / f) for k, f in (("model", "m.pt"), ("losses", "l.csv"), ("figure", "l.png"))}
+        common = dict(train=str(data / "train.parquet"), test=str(data / "test.parquet"), hyper=hyper, seed=seed,
+                      device="cpu", threads=1, progress=False, max_cpu_seconds=seconds, checkpoint_every=10**9, **out)
+        if network == "emulator":
+            training.train_emulator(**common)
+        elif network == "flow":
+            training.train_flow(noise_level=delta, **common)
+        else:
+            training.train_encoder_decoder(emulator=emulator, noise_level=delta, **common)
+        df = pd.read_csv(out["losses"])
+    df.insert(0, "schedule", name)
+    df["cpu_seconds_total"] = df["cpu_seconds"].cumsum()
+    return df
+
+
+def reached(df: pd.DataFrame, metric: str, fractions: list[float], budget: float) -> pd.DataFrame:
+    """Best held-out error of each schedule within each fraction of the CPU budget."""
+    rows = []
+    for name, g in df.groupby("schedule", sort=False):
+        g = g[np.isfinite(g[metric])]
+        row = {"schedule": name, "epochs": int(g["epoch"].max()) if len(g) else 0}
+        for f in fractions:
+            within = g[g["cpu_seconds_total"] <= f * budget * 1.02][metric]
+            row[f"{f:g} x budget"] = float(within.min()) if len(within) else math.nan
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", choices=["structural", "ehr"], default="structural")
+    ap.add_argument("--network", choices=sorted(METRIC), default="emulator")
+    ap.add_argument("--seconds", type=float, default=600.0, help="CPU seconds per schedule")
+    ap.add_argument("--delta", type=float, default=None, help="training noise level (default: the study's first)")
+    ap.add_argument("--seed", type=int, default=2024)
+    ap.add_argument("--jobs", type=int, default=2, help="schedules trained side by side (one thread each)")
+    ap.add_argument("--emulator", default=None, help="emulator file for the encoder/decoder")
+    ap.add_argument("--no-paper", action="store_true", help="skip the paper's schedule")
+    ap.add_argument("--no-ours", action="store_true", help="skip our schedule (variants still build on it)")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME=YAML",
+                    help="a schedule: these keys merged onto ours (repeatable)")
+    args = ap.parse_args()
+
+    cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())["training"]["studies"][args.study]
+    delta = float(cfg["noise_levels"][0] if args.delta is None else args.delta)
+    emulator = args.emulator or str(ROOT / "results" / "models" / args.study / "emulator.pt")
+    ours = schedule(ROOT / "config" / "config.yaml", args.study, args.network)
+    schedules = {} if args.no_ours else {"ours": ours}
+    if not args.no_paper:
+        schedules["paper"] = schedule(ROOT / "config" / "paper.yaml", args.study, args.network)
+    for v in args.variant:
+        name, _, text = v.partition("=")
+        schedules[name] = {**ours, **(yaml.safe_load(text) or {})}
+
+    jobs = [(n, args.study, args.network, h, args.seconds, args.seed, delta, emulator) for n, h in schedules.items()]
+    with mp.get_context("spawn").Pool(min(args.jobs, len(jobs))) as pool:
+        df = pd.concat(pool.map(_run, jobs), ignore_index=True)
+
+    out_dir = ROOT / "benchmarks" / "results"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"training_{args.study}_{args.network}" + (f"_delta{delta:g}" if args.network != "emulator" else "")
+    df.to_csv(out_dir / f"{stem}.csv", index=False)
+    metric, label = METRIC[args.network]
+    table = reached(df, metric, [0.25, 0.5, 1.0], args.seconds)
+    print(f"{args.study} {args.network} (delta={delta:g}), {args.seconds:g} CPU-s per schedule; best {label}:")
+    print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
+    for name, h in schedules.items():
+        print(f"  {name}: {h}")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, g in df.groupby("schedule", sort=False):
+        g = g[np.isfinite(g[metric])]
+        ax.plot(g["cpu_seconds_total"], g[metric].cummin(), label=name, lw=1.3)
+    if (df[metric].dropna() > 0).all():
+        ax.set_yscale("log")
+    ax.set_xlabel("CPU seconds (one thread)")
+    ax.set_ylabel(f"best {label}")
+    ax.set_title(f"{args.study} {args.network}" + (f", delta={delta:g}" if args.network != "emulator" else ""))
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_dir / f"{stem}.png", dpi=120)
+    print(f"wrote {out_dir / stem}.csv and .png")
+
+
+if __name__ == "__main__":
+    main()

@@ -96,3 +96,23 @@ def test_empty_file_loads_as_empty_dict(tmp_path):
     p = tmp_path / "empty.yaml"
     p.write_text("")
     assert load_config(p) == {}
+
+
+@pytest.mark.parametrize("name", CONFIGS)
+def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
+    """``--configfile X`` is merged into config/config.yaml key by key (snakemake's
+    update_config): a network entry must not inherit schedule options it did not state."""
+    from snakemake.utils import update_config
+
+    from cvsim6.training import check_hyper
+
+    cfg = load_config(ROOT / "config" / "config.yaml")
+    update_config(cfg, load_config(ROOT / "config" / name))
+    own = load_config(ROOT / "config" / name)["training"]["studies"]
+    for study, nets in cfg["training"]["studies"].items():
+        for net in ("emulator", "flow", "encoder_decoder"):
+            h = check_hyper(net, nets[net])
+            assert h["epochs"] == own[study][net]["epochs"]
+            if name == "paper.yaml":  # the paper's step decay, evaluated every epoch, last weights
+                assert (h["lr_schedule"], h["eval_every"], h["keep_best"]) == ("step", 1, False), (study, net)
+                assert (h["lr_step"], h["lr_gamma"]) == (own[study][net]["lr_step"], own[study][net]["lr_gamma"])

@@ -49,9 +49,10 @@ Training procedure
   single sample is dropped (BatchNorm needs two).
 * Adam (``fused=True`` when supported) + the learning-rate schedule stepped once per epoch.
 * Losses CSV columns: ``epoch`` (1-based), ``train_loss`` (sample-weighted mean over the
-  epoch's minibatches, in train mode), ``test_loss`` (eval mode, full test split; empty in
+  epoch's minibatches, in train mode), ``test_loss`` (eval mode, full test split; NaN in
   epochs not evaluated), ``lr`` (learning rate used in that epoch), ``seconds`` and ``cpu_seconds``
-  (wall and process CPU time of that epoch), then per-term columns for the encoder/decoder
+  (wall and process CPU time of that epoch; the model file holds no timings, so it is
+  bit-reproducible), then per-term columns for the encoder/decoder
   (unweighted ``decoder``, ``kl``, ``reeval`` terms).
 * Checkpoints (model, optimizer, scheduler, RNG states, history, epoch) every
   ``checkpoint_every`` epochs and at the end, written atomically to ``checkpoint`` (default
@@ -525,7 +526,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     model.eval()
     info = {**info, "epochs_done": done, "final_train_loss": result["train_loss"],
             "final_test_loss": result["test_loss"], "best_epoch": best["epoch"] if keep_best else done,
-            "cpu_seconds": cpu_used, "device": str(device), "torch": str(torch.__version__)}
+            "device": str(device), "torch": str(torch.__version__)}
     nw.save_model(model, model_path, info=info)
     ylabel = {"emulator": "MSE (standardized outputs)", "flow": "negative log-likelihood (nats)",
               "encoder_decoder": "weighted total loss"}.get(stage.name, "loss")

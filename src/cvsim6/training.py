@@ -336,7 +336,7 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
         if mode == "w":
             w.writeheader()
         for r in rows:
-            w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) if k in r else "" for k in columns})
+            w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) for k in columns})
 
 
 def _log_axis(ax, values: np.ndarray) -> None:
@@ -463,7 +463,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     bounds = [(b, min(n, b + bs)) for b in range(0, n, bs) if min(n, b + bs) - b >= 2 or b < n_full]
     bar = tqdm(total=epochs, initial=start, desc=stage.name, file=sys.stderr, disable=not progress,
                dynamic_ncols=True, mininterval=1.0)
-    cpu_used = sum(float(r.get("cpu_seconds", 0.0)) for r in history)
+    cpu_used = sum(r["cpu_seconds"] for r in history)
     for epoch in range(start, stop):
         t0, c0 = time.perf_counter(), time.process_time()
         model.train()

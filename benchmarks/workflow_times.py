@@ -1,0 +1,86 @@
+"""Per-rule CPU and wall seconds of a workflow run, from Snakemake's per-job benchmark files.
+
+Every rule writes ``benchmarks/<rule>.tsv`` or ``benchmarks/<rule>/<wildcards>.tsv``
+(Snakemake's ``benchmark:`` directive: wall seconds ``s``, CPU seconds ``cpu_time``, peak
+memory ``max_rss`` in MB). This sums them per rule, largest CPU first, and gives the total:
+where the CPU time of a ``snakemake --cores 2 all`` run went.
+
+    .venv/bin/python benchmarks/workflow_times.py            # benchmarks/ of this checkout
+    .venv/bin/python benchmarks/workflow_times.py --root ../other-clone/benchmarks --markdown
+
+A file left from an earlier run of another rule set is counted too: run it on the
+``benchmarks/`` of a fresh clone for one run's figures.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parent
+
+
+def job_times(root: Path) -> pd.DataFrame:
+    """One row per job: source (``trained``, or ``published`` for ``benchmarks/published/``, the
+    run with the paper's networks), rule, job (wildcards), wall_s, cpu_s, max_rss_mb."""
+    rows = []
+    for tsv in sorted(root.rglob("*.tsv")):
+        rel = tsv.relative_to(root)
+        if rel.parts[0] == "results":  # benchmarks/results/ holds this folder's own outputs
+            continue
+        source = "trained"
+        if rel.parts[0] == "published":  # a run with the published networks (config/published.yaml)
+            source, rel = "published", rel.relative_to("published")
+        rule, job = (rel.parts[0], rel.with_suffix("").as_posix().split("/", 1)[1]) if len(rel.parts) > 1 \
+            else (rel.stem, "")
+        df = pd.read_csv(tsv, sep="\t")
+        if not {"s", "cpu_time", "max_rss"} <= set(df.columns) or df.empty:
+            raise ValueError(f"{tsv}: not a Snakemake benchmark file (columns {list(df.columns)})")
+        last = df.iloc[-1]  # a rule run with `repeat()` has one row per repeat; the last one counts
+        rows.append(dict(source=source, rule=rule, job=job, wall_s=float(last["s"]), cpu_s=float(last["cpu_time"]),
+                         max_rss_mb=float(last["max_rss"])))
+    if not rows:
+        raise FileNotFoundError(f"no Snakemake benchmark files under {root}")
+    return pd.DataFrame(rows)
+
+
+def rule_times(jobs: pd.DataFrame) -> pd.DataFrame:
+    """Per rule: jobs, CPU and wall seconds summed, the longest job's wall seconds, peak memory
+    (MB); sorted by CPU seconds, with a final ``total`` row."""
+    g = jobs.groupby("rule")
+    table = pd.DataFrame({"jobs": g.size(), "cpu_s": g["cpu_s"].sum(), "wall_s": g["wall_s"].sum(),
+                          "longest_wall_s": g["wall_s"].max(), "max_rss_mb": g["max_rss_mb"].max()})
+    table = table.sort_values("cpu_s", ascending=False)
+    table["cpu_share"] = table["cpu_s"] / table["cpu_s"].sum()
+    total = pd.DataFrame({"jobs": [table["jobs"].sum()], "cpu_s": [table["cpu_s"].sum()],
+                          "wall_s": [table["wall_s"].sum()], "longest_wall_s": [table["longest_wall_s"].max()],
+                          "max_rss_mb": [table["max_rss_mb"].max()], "cpu_share": [1.0]}, index=["total"])
+    return pd.concat([table, total]).rename_axis("rule").reset_index()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--root", type=Path, default=ROOT, help="the workflow's benchmarks/ folder")
+    ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    ap.add_argument("--jobs", action="store_true", help="one row per job instead of per rule")
+    ap.add_argument("--source", choices=["trained", "published", "all"], default="trained",
+                    help="which run's files: the trained networks' (default), the published ones', or both")
+    args = ap.parse_args()
+    jobs = job_times(args.root)
+    if args.source == "all":
+        jobs["rule"] = [r if s == "trained" else f"{s}/{r}" for s, r in zip(jobs["source"], jobs["rule"])]
+    else:
+        jobs = jobs[jobs["source"] == args.source]
+    table = jobs.sort_values("cpu_s", ascending=False) if args.jobs else rule_times(jobs)
+    fmt = {"cpu_s": "{:.0f}".format, "wall_s": "{:.0f}".format, "longest_wall_s": "{:.0f}".format,
+           "max_rss_mb": "{:.0f}".format, "cpu_share": "{:.1%}".format}
+    shown = table.copy()
+    for col, f in fmt.items():
+        if col in shown:
+            shown[col] = shown[col].map(f)
+    print(shown.to_markdown(index=False) if args.markdown else shown.to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""The benchmark helpers in benchmarks/ (scripts, not package code): their arithmetic."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _bench(path: Path, wall: float, cpu: float, rss: float) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(HEADER + f"{wall}\t0:00:00\t{rss}\t0\t0\t0\t0\t0\t100\t{cpu}\n")
+
+
+def test_workflow_times_sums_jobs_per_rule_and_source(tmp_path):
+    wt = _load("workflow_times")
+    _bench(tmp_path / "train_flow" / "ehr_delta0.5.tsv", 300.0, 280.0, 600.0)
+    _bench(tmp_path / "train_flow" / "ehr_delta1.tsv", 310.0, 290.0, 650.0)
+    _bench(tmp_path / "train_emulator" / "structural.tsv", 900.0, 880.0, 500.0)
+    _bench(tmp_path / "ehr_patients.tsv", 2.0, 1.5, 100.0)
+    _bench(tmp_path / "published" / "convert_published" / "ehr.tsv", 3.0, 2.0, 200.0)
+    (tmp_path / "results").mkdir()  # the benchmark scripts' own outputs are not workflow jobs
+    (tmp_path / "results" / "training_x.csv").write_text("a\n1\n")
+
+    jobs = wt.job_times(tmp_path)
+    assert len(jobs) == 5
+    pub = jobs[jobs["source"] == "published"]
+    assert list(pub["rule"]) == ["convert_published"] and list(pub["job"]) == ["ehr"]
+    flow = jobs[jobs["rule"] == "train_flow"].set_index("job")
+    assert flow.loc["ehr_delta0.5", "cpu_s"] == 280.0 and flow.loc["ehr_delta1", "wall_s"] == 310.0
+
+    table = wt.rule_times(jobs[jobs["source"] == "trained"]).set_index("rule")
+    assert list(table.index) == ["train_emulator", "train_flow", "ehr_patients", "total"]  # by CPU seconds
+    assert table.loc["train_flow", "jobs"] == 2
+    assert table.loc["train_flow", "cpu_s"] == pytest.approx(570.0)
+    assert table.loc["train_flow", "longest_wall_s"] == 310.0
+    assert table.loc["train_flow", "max_rss_mb"] == 650.0
+    assert table.loc["total", "cpu_s"] == pytest.approx(880.0 + 570.0 + 1.5)
+    assert table.loc["total", "wall_s"] == pytest.approx(900.0 + 610.0 + 2.0)
+    assert table["cpu_share"].iloc[:-1].sum() == pytest.approx(1.0)
+
+
+def test_workflow_times_rejects_a_file_that_is_not_a_benchmark(tmp_path):
+    wt = _load("workflow_times")
+    (tmp_path / "notes.tsv").write_text("a\tb\n1\t2\n")
+    with pytest.raises(ValueError, match="notes.tsv"):
+        wt.job_times(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no Snakemake benchmark files"):
+        wt.job_times(tmp_path / "empty")

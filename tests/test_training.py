@@ -292,6 +292,11 @@ def test_hyper_validation():
         tr.check_hyper("emulator", EMU | {"dtype": "float16"})
     with pytest.raises(ValueError, match="warmup_epochs"):
         tr.check_hyper("emulator", EMU | {"lr_schedule": "cosine", "warmup_epochs": EMU["epochs"]})
+    for bad in (0.0, -1e-3, True, "1e-3", float("nan")):
+        with pytest.raises(ValueError, match="variance_floor"):
+            tr.check_hyper("emulator", EMU | {"variance_floor": bad})
+    with pytest.raises(ValueError, match="unknown"):  # an emulator option only
+        tr.check_hyper("flow", FLOW | {"variance_floor": 1e-3})
     h = tr.check_hyper("emulator", EMU)
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
     assert h["lr_schedule"] == "step" and h["eval_every"] == 1 and not h["keep_best"] and h["dtype"] == "float32"
@@ -410,6 +415,63 @@ def test_float64_follows_the_float32_run(data, tmp_path):
         np.testing.assert_allclose(double[k].double().numpy(), single[k].double().numpy(), rtol=1e-3, atol=1e-4)
     a, b = pd.read_csv(tmp_path / "s.csv"), pd.read_csv(tmp_path / "d.csv")
     np.testing.assert_allclose(b["test_loss"], a["test_loss"], rtol=1e-3)
+
+
+def test_variance_floor_matrix_raises_only_the_small_variances():
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(5000, 4))
+    y = np.c_[base, base[:, 0] + 0.01 * rng.normal(size=5000)]  # column 4 ~ column 0: one tiny direction
+    y = (y - y.mean(0)) / y.std(0)
+    c = np.cov(y, rowvar=False)
+    lam = np.linalg.eigvalsh(c)
+    assert lam[0] < 1e-4 < 0.5 < lam[1]
+    floor = 1e-2
+    w = tr.variance_floor_matrix(y, floor)
+    np.testing.assert_allclose(w, w.T, atol=1e-12)
+    # the loss sees the covariance with its eigenvalues raised to the floor, the others unchanged
+    np.testing.assert_allclose(np.linalg.eigvalsh(w @ c @ w), np.sort(np.maximum(lam, floor)), rtol=1e-9)
+    # an error along a direction above the floor is left alone; along the tiny one, scaled by sqrt(floor/lam)
+    vals, vecs = np.linalg.eigh(c)
+    np.testing.assert_allclose(vecs[:, -1] @ w, vecs[:, -1], atol=1e-9)
+    np.testing.assert_allclose(vecs[:, 0] @ w, np.sqrt(floor / vals[0]) * vecs[:, 0], rtol=1e-9, atol=1e-9)
+    # a floor below every eigenvalue is the plain MSE
+    np.testing.assert_allclose(tr.variance_floor_matrix(y, lam[0] / 2), np.eye(5), atol=1e-9)
+    with pytest.raises(ValueError, match="singular"):
+        tr.variance_floor_matrix(np.c_[y, y[:, 0]], floor)
+
+
+def test_variance_floor_emulator_loss(data, tmp_path):
+    """The loss is the MSE of the errors times W, the ``mse`` columns the plain MSE of the same
+    weights; the identity matrix gives back the plain loss; the saved model is an ordinary emulator."""
+    torch.manual_seed(0)
+    net = nw.Emulator(16, 3)
+    v, y = torch.randn(50, 23), torch.randn(50, 16)
+    w = tr.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
+    assert not np.allclose(w, np.eye(16))
+    st = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=w)
+    loss, parts = st.batch_loss(torch.arange(50))
+    with torch.no_grad():
+        err = net(v) - y
+    assert float(loss.detach()) == pytest.approx(float(torch.mean((err @ torch.as_tensor(w, dtype=torch.float32)) ** 2)), rel=1e-5)
+    with torch.no_grad():
+        assert float(parts["mse"]) == pytest.approx(float(nw.emulator_loss(net(v), y)), rel=1e-6)
+    plain = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=np.eye(16))
+    assert float(plain.batch_loss(torch.arange(50))[0].detach()) == pytest.approx(float(parts["mse"]), rel=1e-6)
+
+    hyper = EMU | {"epochs": 6, "variance_floor": 0.05}
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=hyper, seed=3, device="cpu", progress=False,
+                      **_paths(tmp_path, "w"))
+    df = pd.read_csv(tmp_path / "w.csv")
+    assert {"train_mse", "test_mse"} <= set(df.columns)
+    model, info = nw.load_model(tmp_path / "w.pt", with_info=True)
+    assert isinstance(model, nw.Emulator) and info["hyper"]["variance_floor"] == 0.05
+    test = pd.read_parquet(data[1])
+    tv, ty = test[list(PARAMETER_NAMES)].to_numpy(), test[list(OUTPUT_NAMES)].to_numpy()
+    err = (model.predict(tv) - ty) / model.y_scaler.std.double().numpy()
+    assert df["test_mse"].iloc[-1] == pytest.approx((err ** 2).mean(), rel=1e-3)
+    train = pd.read_parquet(data[0])
+    wt = tr.variance_floor_matrix(model.y_scaler.transform(train[list(OUTPUT_NAMES)].to_numpy()), 0.05)
+    assert df["test_loss"].iloc[-1] == pytest.approx(((err @ wt) ** 2).mean(), rel=1e-3)
 
 
 def test_resolve_device():

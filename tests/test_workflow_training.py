@@ -11,6 +11,7 @@ def test_training_stage_end_to_end(tmp_path):
     work = copy_workflow(tmp_path)
     targets = ["results/tables/structural_emulator_validation.md",
                "results/tables/ehr_architectures.md",
+               "results/tables/structural_schedules.md",
                "results/models/ehr/encoder_decoder_delta0.5.pt",
                "results/models/ehr/flow_delta2.pt",
                "results/training/ehr/emulator_l2_errors.json",
@@ -35,5 +36,13 @@ def test_training_stage_end_to_end(tmp_path):
     l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
     assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"]
     assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()
+    # the smoke config floors the structural emulator's output variances (not the EHR one's): the
+    # losses then carry the plain MSE beside the weighted loss, and the schedule table says so
+    emu = pd.read_csv(work / "results/training/structural/emulator_losses.csv")
+    assert {"train_mse", "test_mse"} <= set(emu.columns) and emu["train_mse"].notna().all()
+    assert "train_mse" not in pd.read_csv(work / "results/training/ehr/emulator_losses.csv").columns
+    sched = pd.read_csv(work / "results/tables/structural_schedules.csv").set_index("Module")
+    assert "output variances floored at 0.01" in sched.loc["NN_e", "Schedule"]
+    assert "floored" not in sched.loc["NN_f", "Schedule"]
     val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val

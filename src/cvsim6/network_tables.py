@@ -43,10 +43,12 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
     rows = []
     for name, h in (("NN_e", e), ("NN_f", f), ("NN_v + NN_d", d)):
         cosine = h.get("lr_schedule", "step") == "cosine"
+        schedule = (f"cosine to {h.get('lr_final', 0.0):g} x lr, {h.get('warmup_epochs', 0)} warm-up epochs"
+                    if cosine else f"x {h['lr_gamma']:g} every {h['lr_step']} epochs")
+        if h.get("variance_floor") is not None:
+            schedule += f"; loss with the output variances floored at {h['variance_floor']:g}"
         rows.append({"Module": name, "Minibatch": h["batch_size"], "Initial lr": h["lr"],
-                     "Epochs": h["epochs"],
-                     "Schedule": (f"cosine to {h.get('lr_final', 0.0):g} x lr, {h.get('warmup_epochs', 0)} warm-up epochs"
-                                  if cosine else f"x {h['lr_gamma']:g} every {h['lr_step']} epochs"),
+                     "Epochs": h["epochs"], "Schedule": schedule,
                      "Weight decay": h.get("weight_decay", 0.0)})
     sched = pd.DataFrame(rows)
     return arch, sched

@@ -568,6 +568,8 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     nw.save_model(model, model_path, info=info)
     ylabel = {"emulator": "MSE (standardized outputs)", "flow": "negative log-likelihood (nats)",
               "encoder_decoder": "weighted total loss"}.get(stage.name, "loss")
+    if stage.name == "emulator" and stage.parts:  # variance_floor: the loss is weighted, "mse" the plain one
+        ylabel = "MSE, output variances floored"
     plot_losses(losses_path, figure, title=f"{stage.name} ({info.get('label', '')})".replace(" ()", ""), ylabel=ylabel)
     return result
 

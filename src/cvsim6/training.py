@@ -278,8 +278,8 @@ class EmulatorStage(_Stage):
         pred = self.model(v)
         if self.weighting is None:
             return nw.emulator_loss(pred, y), {}
-        err = pred - y
-        return torch.mean((err @ self.weighting) ** 2), {"mse": torch.mean(err.detach() ** 2)}
+        weighted = torch.mean(((pred - y) @ self.weighting) ** 2)
+        return weighted, {"mse": nw.emulator_loss(pred.detach(), y)}
 
     def batch_loss(self, idx):
         return self._loss(self.v_tr[idx], self.y_epoch[idx])

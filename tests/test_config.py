@@ -118,3 +118,5 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
                 assert (h["lr_step"], h["lr_gamma"]) == (own[study][net]["lr_step"], own[study][net]["lr_gamma"])
                 if net == "emulator":  # the paper's plain MSE
                     assert h["variance_floor"] is None, study
+                if net == "encoder_decoder":  # the paper's constant KL weight
+                    assert h["kl_warmup_epochs"] == 0, study

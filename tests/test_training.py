@@ -208,6 +208,8 @@ _SCHEDULES = {"step": {}, "cosine-best": {"lr_schedule": "cosine", "warmup_epoch
 @pytest.mark.parametrize("stage", ["emulator", "flow", "encoder_decoder"])
 def test_resume_after_kill_gives_identical_weights(stage, schedule, data, emulator, tmp_path, monkeypatch):
     hyper = {"emulator": EMU, "flow": FLOW, "encoder_decoder": ENCDEC}[stage] | {"epochs": 7} | _SCHEDULES[schedule]
+    if stage == "encoder_decoder" and schedule == "cosine-best":
+        hyper |= {"kl_warmup_epochs": 5}  # the KL weight depends on the epoch: resumes must restore it
     fn = {"emulator": tr.train_emulator, "flow": tr.train_flow, "encoder_decoder": tr.train_encoder_decoder}[stage]
     extra = {} if stage == "emulator" else {"noise_level": 0.5}
     if stage == "encoder_decoder":
@@ -297,6 +299,9 @@ def test_hyper_validation():
             tr.check_hyper("emulator", EMU | {"variance_floor": bad})
     with pytest.raises(ValueError, match="unknown"):  # an emulator option only
         tr.check_hyper("flow", FLOW | {"variance_floor": 1e-3})
+    for bad in (-1, 2.5, ENCDEC["epochs"] + 1):
+        with pytest.raises(ValueError, match="kl_warmup_epochs"):
+            tr.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
     h = tr.check_hyper("emulator", EMU)
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
     assert h["lr_schedule"] == "step" and h["eval_every"] == 1 and not h["keep_best"] and h["dtype"] == "float32"
@@ -378,6 +383,22 @@ def test_clean_reevaluation_target():
         dc = stages["clean"].batch_loss(idx)[1]
         dn = stages["noisy"].batch_loss(idx)[1]
     assert float(dc["decoder"]) == float(dn["decoder"]) and float(dc["reeval"]) < float(dn["reeval"])
+
+
+def test_kl_warmup_ramps_the_training_kl_weight_only(data, emulator, tmp_path):
+    """Training losses weigh the KL term by beta_v * e / k in epochs e = 1..k, then beta_v; the
+    test losses (hence keep_best) always by the full beta_v."""
+    h = ENCDEC | {"epochs": 6, "kl_warmup_epochs": 4, "beta_v": 0.5}
+    tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"), hyper=h,
+                             seed=0, noise_level=0.5, device="cpu", progress=False, **_paths(tmp_path, "m"))
+    df = pd.read_csv(tmp_path / "m.csv")
+    factor = np.array([0.25, 0.5, 0.75, 1.0, 1.0, 1.0])
+    for split, f in (("train", factor), ("test", np.ones(6))):
+        total = h["beta_d"] * df[f"{split}_decoder"] + h["beta_v"] * f * df[f"{split}_kl"] + h["beta_r"] * df[f"{split}_reeval"]
+        np.testing.assert_allclose(df[f"{split}_loss"], total, rtol=1e-5)
+    # the ramp is not a no-op: the full weight would give a different early training loss
+    full = h["beta_d"] * df["train_decoder"] + h["beta_v"] * df["train_kl"] + h["beta_r"] * df["train_reeval"]
+    assert not np.allclose(df["train_loss"][:3], full[:3], rtol=1e-3)
 
 
 @pytest.mark.parametrize("delta", [0.0, 1.5])

@@ -44,5 +44,6 @@ def test_training_stage_end_to_end(tmp_path):
     sched = pd.read_csv(work / "results/tables/structural_schedules.csv").set_index("Module")
     assert "output variances floored at 0.01" in sched.loc["NN_e", "Schedule"]
     assert "floored" not in sched.loc["NN_f", "Schedule"]
+    assert "KL weight ramped up over the first 1 epoch" in sched.loc["NN_v + NN_d", "Schedule"]
     val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val

@@ -47,6 +47,9 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
                     if cosine else f"x {h['lr_gamma']:g} every {h['lr_step']} epochs")
         if h.get("variance_floor") is not None:
             schedule += f"; loss with the output variances floored at {h['variance_floor']:g}"
+        if h.get("kl_warmup_epochs"):
+            k = h["kl_warmup_epochs"]
+            schedule += f"; KL weight ramped up over the first {k} epoch{'s' if k != 1 else ''}"
         rows.append({"Module": name, "Minibatch": h["batch_size"], "Initial lr": h["lr"],
                      "Epochs": h["epochs"], "Schedule": schedule,
                      "Weight decay": h.get("weight_decay", 0.0)})

@@ -36,7 +36,10 @@ the evaluation with the lowest test loss, default False: the last epoch's), ``dt
   per-sample squared norms averaged over the batch, the paper's equation; "mse": mean over
   batch and components, the paper's public code), ``activation`` ("silu"), ``reeval_target``
   ("noisy", default: the re-evaluation term compares NN_e(NN_d(y', w)) with the noisy y';
-  "clean": with the clean y, as the paper's public code), ``noisy_scaling``.
+  "clean": with the clean y, as the paper's public code), ``noisy_scaling``, ``kl_warmup_epochs``
+  (default 0: the KL weight is ``beta_v`` throughout; k > 0: ``beta_v * e / k`` in epoch e =
+  1..k, then ``beta_v``, so the encoder learns to carry information before the KL term presses
+  on it; test losses, and so ``keep_best``, always use the full ``beta_v``).
 * ``noisy_scaling`` (flow, encoder/decoder; default False): standardize the outputs with the
   std of the noisy outputs, ``sqrt(std^2 + (delta*s)^2)`` (the paper's public code), instead of
   the clean training outputs' std.
@@ -106,7 +109,7 @@ HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
         _COMMON_REQUIRED + ("latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                             "decoder_layers", "beta_d", "beta_v", "beta_r"),
         {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu", "reeval_target": "noisy",
-         "noisy_scaling": False},
+         "noisy_scaling": False, "kl_warmup_epochs": 0},
     ),
 }
 _EVAL_CHUNK = 65536
@@ -140,6 +143,10 @@ def check_hyper(stage: str, hyper: dict) -> dict:
         raise ValueError(f"emulator hyperparameter variance_floor must be null or a number > 0, got {f!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")
+    if stage == "encoder_decoder" and (int(h["kl_warmup_epochs"]) != h["kl_warmup_epochs"]
+                                       or not 0 <= h["kl_warmup_epochs"] <= h["epochs"]):
+        raise ValueError(f"encoder_decoder hyperparameter kl_warmup_epochs must be an integer in [0, epochs], "
+                         f"got {h['kl_warmup_epochs']!r}")
     if stage == "encoder_decoder" and h["reeval_target"] not in ("noisy", "clean"):
         raise ValueError(f"reeval_target must be 'noisy' or 'clean', got {h['reeval_target']!r}")
     return h
@@ -222,8 +229,9 @@ class _Stage:
         """``a`` on the stage's device in its dtype."""
         return _to_device(a, self.device, self.dtype)
 
-    def begin_epoch(self, generator: torch.Generator) -> None:
-        """Draw this epoch's random inputs (noise, eps) from ``generator``."""
+    def begin_epoch(self, generator: torch.Generator, epoch: int = 0) -> None:
+        """Draw this epoch's random inputs (noise, eps) from ``generator``; ``epoch`` is the
+        0-based index of the epoch about to run."""
 
     def batch_loss(self, idx: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         raise NotImplementedError
@@ -304,7 +312,7 @@ class FlowStage(_Stage):
         noise = _std_noise(len(y_te), self.noise_level, test_generator, self.scale)
         self.y_te = self.tensor(y_te if noise is None else torch.as_tensor(y_te) + noise)
 
-    def begin_epoch(self, generator):
+    def begin_epoch(self, generator, epoch=0):
         noise = _std_noise(self.n_train, self.noise_level, generator, self.scale)
         self.y_epoch = self.y_tr if noise is None else self.y_tr + self.tensor(noise)
 
@@ -331,6 +339,8 @@ class EncoderDecoderStage(_Stage):
         self.emulator = emulator
         self.reevaluate = nw.make_reevaluator(emulator, model)
         self.betas = (float(hyper["beta_d"]), float(hyper["beta_v"]), float(hyper["beta_r"]))
+        self.kl_warmup = int(hyper["kl_warmup_epochs"])
+        self.train_betas = self.betas
         self.reduction = hyper["reduction"]
         self.clean_target = hyper["reeval_target"] == "clean"
         self.latent = model.latent_dim
@@ -342,22 +352,29 @@ class EncoderDecoderStage(_Stage):
         self.eps_te = self.tensor(torch.randn(len(v_te), self.latent, generator=test_generator))
         self.y_epoch, self.eps_epoch = self.y_tr, None
 
-    def begin_epoch(self, generator):
+    def kl_factor(self, epoch: int) -> float:
+        """Multiplier of ``beta_v`` in training epoch ``epoch`` (0-based): ``(epoch + 1) / k``
+        during the first k = ``kl_warmup_epochs`` epochs, then 1."""
+        return 1.0 if epoch >= self.kl_warmup else (epoch + 1) / self.kl_warmup
+
+    def begin_epoch(self, generator, epoch=0):
+        d, v, r = self.betas
+        self.train_betas = (d, v * self.kl_factor(epoch), r)
         noise = _std_noise(self.n_train, self.noise_level, generator, self.scale)
         self.y_epoch = self.y_tr if noise is None else self.y_tr + self.tensor(noise)
         self.eps_epoch = self.tensor(torch.randn(self.n_train, self.latent, generator=generator))
 
-    def _loss(self, v, y, eps, y_clean):
-        return nw.encoder_decoder_loss(self.model, v, y, eps, self.reevaluate, *self.betas, reduction=self.reduction,
+    def _loss(self, v, y, eps, y_clean, betas):
+        return nw.encoder_decoder_loss(self.model, v, y, eps, self.reevaluate, *betas, reduction=self.reduction,
                                        y_target_std=y_clean if self.clean_target else None)
 
     def batch_loss(self, idx):
-        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx])
+        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx], self.train_betas)
 
     @torch.no_grad()
     def evaluate(self):
         return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s],
-                                                                  self.y_te_clean[s]))
+                                                                  self.y_te_clean[s], self.betas))
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -505,7 +522,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     for epoch in range(start, stop):
         t0, c0 = time.perf_counter(), time.process_time()
         model.train()
-        stage.begin_epoch(gen)
+        stage.begin_epoch(gen, epoch)
         perm = torch.randperm(n, generator=gen).to(device)
         lr = opt.param_groups[0]["lr"]
         acc = torch.zeros((), device=device, dtype=torch.float64)

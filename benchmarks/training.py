@@ -47,7 +47,7 @@ def _run(job: tuple) -> pd.DataFrame:
     name, study, network, hyper, seconds, seed, delta, emulator = job
     data = ROOT / "results" / "data" / study
     with tempfile.TemporaryDirectory() as tmp:
-        out = {k: str(Path(tmp) / f) for k, f in (("model", "m.pt"), ("losses", "l.csv"), ("figure", "l.png"))}
+        out = {k: str(Path(tmp) / f) for k, f in (("model", "m.pt"), ("losses", "l.csv"))}
         common = dict(train=str(data / "train.parquet"), test=str(data / "test.parquet"), hyper=hyper, seed=seed,
                       device="cpu", threads=1, progress=False, max_cpu_seconds=seconds, checkpoint_every=10**9, **out)
         if network == "emulator":

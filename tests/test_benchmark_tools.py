@@ -4,6 +4,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,3 +58,29 @@ def test_workflow_times_rejects_a_file_that_is_not_a_benchmark(tmp_path):
         wt.job_times(tmp_path)
     with pytest.raises(FileNotFoundError, match="no Snakemake benchmark files"):
         wt.job_times(tmp_path / "empty")
+
+
+def _card(root: Path, values: dict[str, tuple[float, float]]) -> Path:
+    rows = [{"Headline": h, "Paper": p, "Paper section": "x", "trained": v, "trained / paper": v / p,
+             "trained file": "f"} for h, (p, v) in values.items()]
+    path = root / "results" / "report" / "reproduction.csv"
+    path.parent.mkdir(parents=True)
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return root
+
+
+def test_seed_spread_puts_runs_side_by_side(tmp_path):
+    tool = _load("seed_spread")
+    a = _card(tmp_path / "a", {"table 3": (1.0, 1.6), "l2 (%)": (0.14, 0.28), "lambda_1": (-521.0, -520.0)})
+    b = _card(tmp_path / "b", {"l2 (%)": (0.14, 0.42), "table 3": (1.0, 1.2), "lambda_1": (-521.0, -522.0)})
+    table = tool.seed_spread({"s1": a, "s2": b})
+    assert list(table.index) == ["table 3", "l2 (%)", "lambda_1"]  # the first run's order
+    assert table.loc["l2 (%)", "s2"] == pytest.approx(0.42) and table.loc["l2 (%)", "s1 / paper"] == pytest.approx(2.0)
+    assert table.loc["table 3", "spread"] == pytest.approx(1.6 / 1.2)
+    assert table.loc["l2 (%)", "spread"] == pytest.approx(3.0 / 2.0)
+    assert table.loc["lambda_1", "spread"] == pytest.approx(522.0 / 520.0)
+    c = _card(tmp_path / "c", {"table 3": (1.0, 1.6), "l2 (%)": (0.15, 0.28), "lambda_1": (-521.0, -520.0)})
+    with pytest.raises(ValueError, match="'s3'"):
+        tool.seed_spread({"s1": a, "s3": c})
+    with pytest.raises(FileNotFoundError, match="'s4'"):
+        tool.seed_spread({"s1": a, "s4": tmp_path / "nowhere"})

@@ -43,7 +43,7 @@ def data(tmp_path_factory):
 
 
 def _paths(d, name):
-    return dict(model=str(d / f"{name}.pt"), losses=str(d / f"{name}.csv"), figure=str(d / f"{name}.png"))
+    return dict(model=str(d / f"{name}.pt"), losses=str(d / f"{name}.csv"))
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,7 @@ def test_emulator_trains(emulator, data):
     # StepLR stepped per epoch: lr of epoch e is lr * gamma^floor((e-1)/step)
     expected = EMU["lr"] * EMU["lr_gamma"] ** ((df["epoch"] - 1) // EMU["lr_step"])
     assert np.allclose(df["lr"], expected)
-    assert (d / "emulator.png").stat().st_size > 10_000
+    assert not list(d.glob("*.png"))  # figures are drawn from the CSV elsewhere (cvsim6.loss_plots)
     model, info = nw.load_model(d / "emulator.pt", with_info=True)
     assert info["stage"] == "emulator" and info["noise_level"] == 0.0 and info["hyper"]["hidden"] == 32
     # physical-units prediction is better than predicting the mean
@@ -88,7 +88,6 @@ def test_flow_trains(data, tmp_path):
     assert isinstance(flow, nw.RealNVP) and flow.config["batchnorm"]
     y = flow.sample_physical(200, torch.Generator().manual_seed(0))
     assert y.shape == (200, 16) and np.isfinite(y).all()
-    assert (tmp_path / "flow.png").exists()
 
 
 def test_encoder_decoder_trains(data, emulator, tmp_path):
@@ -498,3 +497,4 @@ def test_variance_floor_emulator_loss(data, tmp_path):
 def test_resolve_device():
     assert tr.resolve_device("cpu").type == "cpu"
     assert tr.resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+

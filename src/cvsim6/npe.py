@@ -33,7 +33,7 @@ from . import networks as nw
 from .datasets import load_split
 from .priors import prior_bounds
 from .registry import N_OUTPUTS, N_PARAMETERS
-from .training import derived_seed, plot_losses
+from .training import derived_seed
 
 log = logging.getLogger(__name__)
 
@@ -213,10 +213,11 @@ def load_npe(path: str | Path) -> NPEPosterior:
     return NPEPosterior(estimator, lo, np.asarray(payload["hi"], float), h, payload.get("info", {}))
 
 
-def train_npe(train: str, model: str, losses: str, figure: str, prior: dict, hyper: dict, noise_level: float,
+def train_npe(train: str, model: str, losses: str, prior: dict, hyper: dict, noise_level: float,
               seed: int, threads: int = 1) -> dict:
     """Workflow step: NPE on the training split, one noise draw of level ``noise_level`` (delta)
-    per row (seeded), on ``threads`` CPU threads; writes ``model``, ``losses`` (CSV), ``figure``."""
+    per row (seeded), on ``threads`` CPU threads; writes ``model`` and ``losses`` (CSV;
+    :func:`cvsim6.loss_plots.plot_training_losses` draws it)."""
     torch.set_num_threads(int(threads))
     v, y = load_split(train)
     lo, hi = prior_bounds(prior)
@@ -227,7 +228,6 @@ def train_npe(train: str, model: str, losses: str, figure: str, prior: dict, hyp
     save_npe(post, model)
     Path(losses).parent.mkdir(parents=True, exist_ok=True)
     hist.to_csv(losses, index=False)
-    plot_losses(losses, figure, title=f"NPE (delta={noise_level:g})", ylabel="negative log-likelihood (nats)")
     log.info("NPE delta=%g: %d epochs, %.0f s wall, %.0f s CPU, best validation NLL %.4g",
              noise_level, post.info["epochs_done"], post.info["train_seconds"], post.info["cpu_seconds"],
              post.info["best_validation_loss"])

@@ -85,7 +85,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import torch
 from torch import nn
 
@@ -394,65 +393,6 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
             w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) for k in columns})
 
 
-def _log_axis(ax, values: np.ndarray) -> None:
-    """Log-scale y; plain numbers on the ticks when the data span less than a decade."""
-    from matplotlib.ticker import FormatStrFormatter
-
-    ax.set_yscale("log")
-    if values.max() / values.min() < 10.0:
-        ax.yaxis.set_major_formatter(FormatStrFormatter("%.3g"))
-        ax.yaxis.set_minor_formatter(FormatStrFormatter("%.3g"))
-
-
-def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", ylabel: str = "loss") -> None:
-    """PNG loss curve from a losses CSV: train and test, log-scale y (linear when a loss is
-    not positive, e.g. a flow NLL); encoder/decoder CSVs get a second panel per loss term."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    df = pd.read_csv(losses_csv)
-    parts = [c[len("train_"):] for c in df.columns if c.startswith("train_") and c != "train_loss"]
-    fig, axes = plt.subplots(1, 2 if parts else 1, figsize=(12 if parts else 7, 4.5), squeeze=False)
-    ax = axes[0, 0]
-    ax.plot(df["epoch"], df["train_loss"], label="train", lw=1.2)
-    tested = df[np.isfinite(df["test_loss"])]
-    ax.plot(tested["epoch"], tested["test_loss"], label="test", lw=1.2, marker="." if len(tested) < 50 else None)
-    vals = np.concatenate([df["train_loss"].to_numpy(), df["test_loss"].to_numpy()])
-    vals = vals[np.isfinite(vals)]
-    if vals.size and (vals > 0).all():
-        _log_axis(ax, vals)
-    elif vals.size:
-        lo, hi = np.quantile(vals, [0.0, 0.98])
-        pad = 0.05 * (hi - lo if hi > lo else 1.0)
-        ax.set_ylim(lo - pad, hi + pad)
-    ax.set_xlabel("epoch")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title or "loss")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    if parts:
-        ax2 = axes[0, 1]
-        for i, p in enumerate(parts):
-            color = f"C{i}"
-            ax2.plot(df["epoch"], df[f"train_{p}"], color=color, lw=1.2, label=f"{p} (train)")
-            ax2.plot(tested["epoch"], tested[f"test_{p}"], color=color, lw=1.2, ls="--", label=f"{p} (test)")
-        pv = df[[f"train_{p}" for p in parts] + [f"test_{p}" for p in parts]].to_numpy().ravel()
-        pv = pv[np.isfinite(pv)]
-        if pv.size and (pv > 0).all():
-            _log_axis(ax2, pv)
-        ax2.set_xlabel("epoch")
-        ax2.set_ylabel("unweighted term")
-        ax2.set_title("loss terms")
-        ax2.grid(True, which="both", alpha=0.3)
-        ax2.legend(fontsize="small")
-    fig.tight_layout()
-    Path(figure).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(figure, dpi=150)
-    plt.close(fig)
-
-
 # ----------------------------------------------------------------------------- generic loop
 def _save_checkpoint(path: Path, payload: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -462,7 +402,7 @@ def _save_checkpoint(path: Path, payload: dict) -> None:
 
 
 def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: str, losses: str,
-         figure: str, checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
+         checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
          checkpoint_every: int, progress: bool, max_cpu_seconds: float | None = None) -> dict:
     """Train ``stage.model`` (already seeded, built and on the device); see module docstring.
     ``max_cpu_seconds`` (benchmarks) stops after the epoch in which the run's CPU time, summed
@@ -583,11 +523,6 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             "final_test_loss": result["test_loss"], "best_epoch": best["epoch"] if keep_best else done,
             "device": str(device), "torch": str(torch.__version__)}
     nw.save_model(model, model_path, info=info)
-    ylabel = {"emulator": "MSE (standardized outputs)", "flow": "negative log-likelihood (nats)",
-              "encoder_decoder": "weighted total loss"}.get(stage.name, "loss")
-    if stage.name == "emulator" and stage.parts:  # variance_floor: the loss is weighted, "mse" the plain one
-        ylabel = "MSE, output variances floored"
-    plot_losses(losses_path, figure, title=f"{stage.name} ({info.get('label', '')})".replace(" ()", ""), ylabel=ylabel)
     return result
 
 
@@ -613,14 +548,15 @@ def _fingerprint(**items) -> str:
 
 
 # ----------------------------------------------------------------------------- entry points
-def train_emulator(train: str, test: str, model: str, losses: str, figure: str, hyper: dict, seed: int,
+def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
                    device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                    max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
                    progress: bool = True, max_cpu_seconds: float | None = None) -> dict:
-    """Train ``NN_e`` (parameters -> outputs) on clean data; write ``model`` (.pt), ``losses``
-    (CSV) and ``figure`` (PNG). ``max_epochs_this_run`` stops early after that many epochs of
-    this call (checkpoint only, no model written). Returns a summary dict (``completed``,
-    ``epochs_done``, ``train_loss``, ``test_loss``)."""
+    """Train ``NN_e`` (parameters -> outputs) on clean data; write ``model`` (.pt) and ``losses``
+    (CSV, one row per epoch; :func:`cvsim6.loss_plots.plot_training_losses` draws it).
+    ``max_epochs_this_run`` stops early after that many epochs of this call (checkpoint only,
+    no model written). Returns a summary dict (``completed``, ``epochs_done``, ``train_loss``,
+    ``test_loss``)."""
     h, dev, dtype = _setup("emulator", hyper, device, threads)
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
@@ -635,11 +571,11 @@ def train_emulator(train: str, test: str, model: str, losses: str, figure: str, 
                        net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype, weighting)
     fp = _fingerprint(stage="emulator", hyper=h, seed=seed, data=_digest(v_tr, y_tr, v_te, y_te), fmt=nw.FORMAT)
     info = {"stage": "emulator", "hyper": h, "seed": seed, "noise_level": 0.0, "n_train": len(v_tr), "n_test": len(v_te)}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
                 progress, max_cpu_seconds)
 
 
-def train_flow(train: str, test: str, model: str, losses: str, figure: str, hyper: dict, seed: int,
+def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
                noise_level: float = 0.0, device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                max_epochs_this_run: int | None = None, checkpoint_every: int = 50, progress: bool = True,
                max_cpu_seconds: float | None = None) -> dict:
@@ -663,11 +599,11 @@ def train_flow(train: str, test: str, model: str, losses: str, figure: str, hype
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "flow", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(y_tr), "n_test": len(y_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
                 progress, max_cpu_seconds)
 
 
-def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str, figure: str,
+def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str,
                           hyper: dict, seed: int, noise_level: float = 0.0, device: str = "auto",
                           threads: int = 1, checkpoint: str | None = None,
                           max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
@@ -700,5 +636,5 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "encoder_decoder", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(v_tr), "n_test": len(v_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, figure, checkpoint, info, max_epochs_this_run, checkpoint_every,
+    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
                 progress, max_cpu_seconds)

@@ -13,12 +13,6 @@ rule train_npe:
     output:
         model=f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt",
         losses=f"{TRAINING}/ehr/npe_delta{{delta}}_losses.csv",
-        figure=report(
-            f"{TRAINING}/ehr/npe_delta{{delta}}_losses.png",
-            category="Calibration",
-            subcategory="NPE training",
-            caption="../report/npe_losses.rst",
-        ),
     log:
         f"{LOGS}/train_npe/delta{{delta}}.log",
     benchmark:
@@ -35,6 +29,34 @@ rule train_npe:
         hyper=config["calibration"]["npe"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule plot_npe_losses:
+    input:
+        code=code_for("cvsim6.loss_plots:plot_training_losses"),
+        losses=rules.train_npe.output.losses,
+    output:
+        figure=report(
+            f"{TRAINING}/ehr/npe_delta{{delta}}_losses.png",
+            category="Calibration",
+            subcategory="NPE training",
+            caption="../report/npe_losses.rst",
+        ),
+    log:
+        f"{LOGS}/plot_npe_losses/delta{{delta}}.log",
+    benchmark:
+        f"{BENCHMARKS}/plot_npe_losses/delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.loss_plots:plot_training_losses",
+        network=lambda w: f"npe_delta{w.delta}",
     script:
         "../scripts/call.py"
 
@@ -205,4 +227,4 @@ rule calibration:
     input:
         rules.calibration_summary.output,
         rules.ehr_error_methods.output,
-        expand(rules.train_npe.output.figure, delta=noise_tags("ehr")),
+        expand(rules.plot_npe_losses.output.figure, delta=noise_tags("ehr")),

@@ -11,6 +11,7 @@ NET_TRAINING = f"{NET}/training"
 
 wildcard_constraints:
     delta=r"[0-9.]+",
+    network=r"emulator|(flow|encoder_decoder)_delta[0-9.]+",
 
 
 rule network_tables:
@@ -47,12 +48,6 @@ rule train_emulator:
     output:
         model=f"{TRAINED_MODELS}/{{study}}/emulator.pt",
         losses=f"{TRAINING}/{{study}}/emulator_losses.csv",
-        figure=report(
-            f"{TRAINING}/{{study}}/emulator_losses.png",
-            category="Training",
-            subcategory="{study}",
-            caption="../report/training_losses.rst",
-        ),
     log:
         f"{LOGS}/train_emulator/{{study}}.log",
     benchmark:
@@ -82,12 +77,6 @@ rule train_flow:
     output:
         model=f"{TRAINED_MODELS}/{{study}}/flow_delta{{delta}}.pt",
         losses=f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.csv",
-        figure=report(
-            f"{TRAINING}/{{study}}/flow_delta{{delta}}_losses.png",
-            category="Training",
-            subcategory="{study}",
-            caption="../report/training_losses.rst",
-        ),
     log:
         f"{LOGS}/train_flow/{{study}}_delta{{delta}}.log",
     benchmark:
@@ -119,12 +108,6 @@ rule train_encoder_decoder:
     output:
         model=f"{TRAINED_MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt",
         losses=f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.csv",
-        figure=report(
-            f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.png",
-            category="Training",
-            subcategory="{study}",
-            caption="../report/training_losses.rst",
-        ),
     log:
         f"{LOGS}/train_encoder_decoder/{{study}}_delta{{delta}}.log",
     benchmark:
@@ -143,6 +126,35 @@ rule train_encoder_decoder:
         seed=config["seed"],
         device=config["training"]["device"],
         checkpoint_every=config["training"]["checkpoint_every"],
+    script:
+        "../scripts/call.py"
+
+
+rule plot_training_losses:
+    input:
+        code=code_for("cvsim6.loss_plots:plot_training_losses"),
+        losses=f"{TRAINING}/{{study}}/{{network}}_losses.csv",
+    output:
+        figure=report(
+            f"{TRAINING}/{{study}}/{{network}}_losses.png",
+            category="Training",
+            subcategory="{study}",
+            caption="../report/training_losses.rst",
+        ),
+    log:
+        f"{LOGS}/plot_training_losses/{{study}}_{{network}}.log",
+    benchmark:
+        f"{BENCHMARKS}/plot_training_losses/{{study}}_{{network}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.loss_plots:plot_training_losses",
+        network=lambda w: w.network,
+        study=lambda w: w.study,
     script:
         "../scripts/call.py"
 

@@ -1,0 +1,80 @@
+"""Loss figures (cvsim6.loss_plots): a divergence spike is cut from the axes and marked."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsim6 import loss_plots as lp
+
+
+def test_divergence_epochs_flags_a_spike_and_its_recovery_but_not_a_falling_or_rising_curve():
+    epochs = np.arange(1, 1001)
+    falling = 1.0 * np.exp(-epochs / 100.0) + 1e-6  # five decades down: the normal emulator shape
+    assert not lp.divergence_epochs(falling).any()
+    rising = 0.1 + 26.0 * (1.0 - np.exp(-epochs / 50.0))  # a KL term growing 2.4 decades from its start
+    assert not lp.divergence_epochs(rising).any()
+    spiked = falling.copy()
+    spiked[600:650] = 1e15 * np.exp(-np.arange(50) / 2.0)  # blows up, then relearns
+    flagged = lp.divergence_epochs(spiked)
+    expected = spiked > 100.0 * np.minimum.accumulate(falling)
+    assert flagged.sum() > 0 and np.array_equal(flagged, expected)
+    assert flagged[600] and not flagged[:600].any() and not flagged[650:].any()
+    with_gaps = spiked.copy()
+    with_gaps[1::2] = np.nan  # a test loss evaluated every other epoch
+    assert np.array_equal(lp.divergence_epochs(with_gaps), flagged & np.isfinite(with_gaps))
+    assert not lp.divergence_epochs(np.r_[-5.0, 1e9]).any()  # a flow NLL: not on a log scale
+
+
+def test_loss_figure_scales_to_the_healthy_epochs_and_marks_the_cut(tmp_path):
+    epochs = np.arange(1, 2001)
+    train = 2000.0 * np.exp(-epochs / 80.0) + 30.0
+    train[1000:1100] = 5e15 * np.exp(-np.arange(100) / 4.0) + 30.0
+    test = np.where(epochs % 10 == 0, train * 1.02, np.nan)
+    df = pd.DataFrame(dict(epoch=epochs, train_loss=train, test_loss=test, train_kl=train / 2,
+                           test_kl=test / 2, train_decoder=np.full(epochs.size, 0.01),
+                           test_decoder=np.where(np.isnan(test), np.nan, 0.01)))
+    df.to_csv(tmp_path / "l.csv", index=False)
+    cuts = lp.plot_losses(tmp_path / "l.csv", tmp_path / "l.png")
+    assert (tmp_path / "l.png").stat().st_size > 10_000
+    spike = lp.divergence_epochs(train)
+    healthy_max = max(np.nanmax(train[~spike]), np.nanmax(test[~spike]))
+    assert healthy_max < cuts["loss"]["top"] < 2 * healthy_max  # the start of training stays in view
+    assert cuts["loss"]["epochs"] == epochs[(train > cuts["loss"]["top"]) | (test > cuts["loss"]["top"])].tolist()
+    assert cuts["loss"]["epochs"][0] == 1001 and cuts["loss"]["peak"] == pytest.approx(5e15, rel=1e-6)
+    assert cuts["terms"]["epochs"][0] == 1001
+    clean = df.copy()
+    clean.loc[1000:1099, ["train_loss", "test_loss", "train_kl", "test_kl"]] = 40.0
+    clean.to_csv(tmp_path / "c.csv", index=False)
+    assert lp.plot_losses(tmp_path / "c.csv", tmp_path / "c.png") == {}
+
+
+def _emulator_csv(path, mse_columns: bool):
+    epochs = np.arange(1, 101)
+    loss = np.exp(-epochs / 20.0)
+    df = pd.DataFrame(dict(epoch=epochs, train_loss=loss, test_loss=loss * 1.1, lr=1e-3))
+    if mse_columns:
+        df["train_mse"], df["test_mse"] = loss / 2, loss / 2
+    df.to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize("network, study, title, ylabel", [
+    ("emulator", "ehr", "emulator (ehr)", "MSE (standardized outputs)"),
+    ("flow_delta0.50", "structural", "flow (structural, delta=0.5)", "negative log-likelihood (nats)"),
+    ("encoder_decoder_delta1", "ehr", "encoder_decoder (ehr, delta=1)", "weighted total loss"),
+    ("npe_delta2", "", "NPE (delta=2)", "negative log-likelihood (nats)"),
+])
+def test_training_loss_figure_is_named_by_the_network(network, study, title, ylabel, tmp_path):
+    out = lp.plot_training_losses(str(_emulator_csv(tmp_path / "l.csv", False)), str(tmp_path / "l.png"),
+                                  network=network, study=study)
+    assert (out["title"], out["ylabel"], out["cut"]) == (title, ylabel, {})
+    assert (tmp_path / "l.png").stat().st_size > 10_000
+
+
+def test_variance_floored_emulator_gets_its_own_label_and_bad_names_are_refused(tmp_path):
+    csv = str(_emulator_csv(tmp_path / "l.csv", True))
+    assert lp.plot_training_losses(csv, str(tmp_path / "l.png"), "emulator")["ylabel"] == "MSE, output variances floored"
+    with pytest.raises(ValueError, match="'emulator_delta0.5'"):
+        lp.plot_training_losses(csv, str(tmp_path / "x.png"), "emulator_delta0.5")
+    assert not (tmp_path / "x.png").exists()

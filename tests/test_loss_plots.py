@@ -47,6 +47,14 @@ def test_loss_figure_scales_to_the_healthy_epochs_and_marks_the_cut(tmp_path):
     clean.loc[1000:1099, ["train_loss", "test_loss", "train_kl", "test_kl"]] = 40.0
     clean.to_csv(tmp_path / "c.csv", index=False)
     assert lp.plot_losses(tmp_path / "c.csv", tmp_path / "c.png") == {}
+    # a guarded run (grad_clip) counts its skipped steps: those epochs are marked, nothing is cut
+    clean["skipped_steps"] = 0
+    clean.loc[[1750, 1900], "skipped_steps"] = [1, 2]
+    clean.to_csv(tmp_path / "s.csv", index=False)
+    assert lp.plot_losses(tmp_path / "s.csv", tmp_path / "s.png") == {"skipped": [1751, 1901]}
+    clean["skipped_steps"] = 0
+    clean.to_csv(tmp_path / "n.csv", index=False)
+    assert lp.plot_losses(tmp_path / "n.csv", tmp_path / "n.png") == {}
 
 
 def _emulator_csv(path, mse_columns: bool):

@@ -1,6 +1,8 @@
 """Training stages (cvsim6.training): losses fall, noise injection, outputs, resume, seeding."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -276,6 +278,58 @@ def test_seed_controls_result(data, tmp_path):
     _assert_same_weights(run("a", 7), run("b", 7))
     with pytest.raises(AssertionError):
         _assert_same_weights(run("c", 7), run("d", 8))
+
+
+def _encdec_weights(data, emulator, tmp_path, name, hyper, scale_call=None, scale=1.0, monkeypatch=None):
+    """Train the small encoder/decoder; optionally multiply the loss of one training step
+    (call number ``scale_call``) by ``scale``; return the saved weights."""
+    if scale_call is not None:
+        calls = {"n": 0}
+        orig = tr.EncoderDecoderStage.batch_loss
+
+        def batch_loss(self, idx):
+            loss, parts = orig(self, idx)
+            calls["n"] += 1
+            return (loss * scale if calls["n"] == scale_call else loss), parts
+        monkeypatch.setattr(tr.EncoderDecoderStage, "batch_loss", batch_loss)
+    try:
+        tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                 hyper=ENCDEC | {"epochs": 3} | hyper, seed=3, device="cpu", progress=False,
+                                 **_paths(tmp_path, name))
+    finally:
+        if monkeypatch is not None:
+            monkeypatch.undo()
+    return _state(tmp_path / f"{name}.pt")
+
+
+def test_grad_clip_is_a_guard_that_only_acts_on_outlier_steps(data, emulator, tmp_path, monkeypatch):
+    """The structural encoder/decoder's grad_clip (config.yaml) sits far above every normal
+    gradient norm: below it a step is untouched (bit for bit), and a step whose norm is not finite
+    (seed 2024's KL spikes overflowed float32) is skipped instead of poisoning Adam's moments."""
+    plain = _encdec_weights(data, emulator, tmp_path, "plain", {})
+    guarded = _encdec_weights(data, emulator, tmp_path, "guarded", {"grad_clip": 1.0e5})
+    for k in plain:
+        assert torch.equal(plain[k], guarded[k]), k
+    assert "skipped_steps" not in pd.read_csv(tmp_path / "plain.csv")
+    assert pd.read_csv(tmp_path / "guarded.csv")["skipped_steps"].tolist() == [0, 0, 0]
+    # step 5's loss x 1e36 (gradient norm overflows to inf) or x nan: the step is skipped, the
+    # epoch's mean loss leaves it out, the CSV counts it
+    spiked = _encdec_weights(data, emulator, tmp_path, "spiked", {"grad_clip": 1.0e5}, 5, 1e36, monkeypatch)
+    nan = _encdec_weights(data, emulator, tmp_path, "nan", {"grad_clip": 1.0e5}, 5, math.nan, monkeypatch)
+    for k in spiked:
+        assert torch.isfinite(spiked[k]).all() and torch.equal(spiked[k], nan[k]), k
+    df, ref = pd.read_csv(tmp_path / "spiked.csv"), pd.read_csv(tmp_path / "guarded.csv")
+    assert df["skipped_steps"].tolist() == [1, 0, 0]
+    assert np.isfinite(df["train_loss"]).all() and df["train_loss"].iloc[0] < 2 * ref["train_loss"].iloc[0]
+    assert any(not torch.equal(spiked[k], guarded[k]) for k in guarded)  # one update fewer
+    # without the guard the same spike is applied and moves the weights elsewhere; a nan loss ends the run
+    unguarded = _encdec_weights(data, emulator, tmp_path, "unguarded", {}, 5, 1e36, monkeypatch)
+    assert any(not torch.equal(unguarded[k], spiked[k]) for k in spiked)
+    with pytest.raises(FloatingPointError, match="non-finite loss at epoch 1"):
+        _encdec_weights(data, emulator, tmp_path, "unguarded_nan", {}, 5, math.nan, monkeypatch)
+    # a clip that does act changes the run
+    tight = _encdec_weights(data, emulator, tmp_path, "tight", {"grad_clip": 1.0e-3})
+    assert any(not torch.equal(tight[k], plain[k]) for k in plain)
 
 
 def test_hyper_validation():

@@ -119,7 +119,10 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     see :func:`divergence_epochs`) would flatten the rest of the curve on a log axis, so the axes
     are scaled to the other epochs and the cut is marked: the spike's epochs are shaded, its
     points sit as red triangles on the top edge, and a label gives their count and peak.
-    Returns, per panel, the axis top and the epochs cut (``{}`` when nothing was cut)."""
+    Epochs in which training skipped a step (a non-finite gradient norm, column ``skipped_steps``
+    of a run with ``grad_clip``) get a dotted vertical line.
+    Returns, per panel, the axis top and the epochs cut (``{}`` when nothing was cut), and under
+    ``"skipped"`` the epochs with a skipped step, when there are any."""
     df = pd.read_csv(losses_csv)
     epochs = df["epoch"].to_numpy()
     parts = [c[len("train_"):] for c in df.columns if c.startswith("train_") and c != "train_loss"]
@@ -134,6 +137,13 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     top = _set_limits(ax, loss_values, healthy)
     if top is not None:
         cuts["loss"] = _mark_cut(ax, epochs, loss_values, top)
+    if "skipped_steps" in df and (df["skipped_steps"] > 0).any():
+        skipped = df.loc[df["skipped_steps"] > 0, "epoch"].astype(int).tolist()
+        for k, e in enumerate(skipped):
+            ax.axvline(e, color="0.35", ls=":", lw=1.0, zorder=0,
+                       label=f"skipped step (non-finite gradient): {int(df['skipped_steps'].sum())} in "
+                             f"{len(skipped)} epoch{'s' if len(skipped) > 1 else ''}" if k == 0 else None)
+        cuts["skipped"] = skipped
     ax.set_xlabel("epoch")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel(ylabel)

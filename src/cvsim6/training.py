@@ -14,7 +14,9 @@ Common (optional): ``lr_schedule`` ("step", default: StepLR with ``lr_step`` epo
 by ``lr_gamma``, both then required; "cosine": linear warm-up over ``warmup_epochs`` (default
 0), then a cosine down to ``lr * lr_final`` (default 0) in the last epoch), ``weight_decay``
 (Adam L2 penalty, default 0), ``grad_clip`` (max global gradient norm, 0 = off, default 0; the
-paper's code clips the structural flow at 10), ``eval_every`` (epochs between test-loss
+paper's code clips the structural flow at 10; when on, a step whose gradient norm is not finite,
+e.g. overflowed by a loss spike, is skipped: no update, left out of the epoch's mean loss,
+counted in the losses CSV's ``skipped_steps`` column and logged), ``eval_every`` (epochs between test-loss
 evaluations, default 1; the last epoch is always evaluated), ``keep_best`` (save the weights of
 the evaluation with the lowest test loss, default False: the last epoch's), ``dtype``
 ("float32", default, or "float64", as the paper's code).
@@ -390,7 +392,7 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
         if mode == "w":
             w.writeheader()
         for r in rows:
-            w.writerow({k: (repr(float(r[k])) if k != "epoch" else int(r[k])) for k in columns})
+            w.writerow({k: (int(r[k]) if k in ("epoch", "skipped_steps") else repr(float(r[k]))) for k in columns})
 
 
 # ----------------------------------------------------------------------------- generic loop
@@ -421,7 +423,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     clip = float(hyper["grad_clip"])
     ckpt_path = Path(checkpoint) if checkpoint else Path(str(model_path) + ".ckpt")
     losses_path = Path(losses)
-    columns = _columns(stage)
+    columns = _columns(stage) + (["skipped_steps"] if clip > 0 else [])
 
     history: list[dict] = []
     start = 0
@@ -467,14 +469,19 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
         lr = opt.param_groups[0]["lr"]
         acc = torch.zeros((), device=device, dtype=torch.float64)
         acc_parts = {p: torch.zeros((), device=device, dtype=torch.float64) for p in stage.parts}
-        used = 0
+        used = skipped = 0
         for b0, b1 in bounds:
             idx = perm[b0:b1]
             loss, parts = stage.batch_loss(idx)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if clip > 0:
-                nn.utils.clip_grad_norm_(params, clip)
+                norm = nn.utils.get_total_norm([p.grad for p in params if p.grad is not None])
+                if not torch.isfinite(norm):  # overflowed (a loss spike): no update, out of the mean
+                    skipped += 1
+                    continue
+                if norm > clip:  # else the gradient is left untouched, bit for bit
+                    nn.utils.clip_grads_with_norm_(params, clip, norm)
             opt.step()
             k = b1 - b0
             acc += loss.detach().double() * k
@@ -485,9 +492,15 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
         model.eval()
         evaluated = (epoch + 1) % eval_every == 0 or epoch + 1 == epochs
         test_loss, test_parts = stage.evaluate() if evaluated else (math.nan, {})
-        row = {"epoch": epoch + 1, "train_loss": float(acc) / used, "test_loss": test_loss, "lr": lr}
+        row = {"epoch": epoch + 1, "train_loss": float(acc) / used if used else math.nan, "test_loss": test_loss,
+               "lr": lr}
+        if clip > 0:
+            row["skipped_steps"] = skipped
+            if skipped:
+                log.warning("%s: epoch %d: %d of %d steps skipped (non-finite gradient norm)", stage.name,
+                            epoch + 1, skipped, len(bounds))
         for p in stage.parts:
-            row[f"train_{p}"] = float(acc_parts[p]) / used
+            row[f"train_{p}"] = float(acc_parts[p]) / used if used else math.nan
             row[f"test_{p}"] = test_parts.get(p, math.nan)
         if keep_best and evaluated and test_loss < best["loss"]:
             best = {"loss": test_loss, "epoch": epoch + 1,

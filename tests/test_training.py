@@ -303,9 +303,9 @@ def _encdec_weights(data, emulator, tmp_path, name, hyper, scale_call=None, scal
 
 
 def test_grad_clip_is_a_guard_that_only_acts_on_outlier_steps(data, emulator, tmp_path, monkeypatch):
-    """The structural encoder/decoder's grad_clip (config.yaml) sits far above every normal
-    gradient norm: below it a step is untouched (bit for bit), and a step whose norm is not finite
-    (seed 2024's KL spikes overflowed float32) is skipped instead of poisoning Adam's moments."""
+    """grad_clip set far above every normal gradient norm leaves a step untouched (bit for bit),
+    and a step whose norm is not finite (seed 2024's structural KL spikes overflowed float32) is
+    skipped instead of poisoning Adam's moments."""
     plain = _encdec_weights(data, emulator, tmp_path, "plain", {})
     guarded = _encdec_weights(data, emulator, tmp_path, "guarded", {"grad_clip": 1.0e5})
     for k in plain:

@@ -332,6 +332,23 @@ def test_grad_clip_is_a_guard_that_only_acts_on_outlier_steps(data, emulator, tm
     assert any(not torch.equal(tight[k], plain[k]) for k in plain)
 
 
+def test_resume_from_a_checkpoint_without_skipped_steps(data, tmp_path):
+    """A completed or interrupted checkpoint written before ``skipped_steps`` existed resumes:
+    its rows keep an empty cell there, the new rows count."""
+    kw = dict(seed=1, device="cpu", progress=False, **_paths(tmp_path, "m"))
+    hyper = EMU | {"epochs": 4, "grad_clip": 1.0e5}
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=hyper, max_epochs_this_run=2, **kw)
+    ckpt = tmp_path / "m.pt.ckpt"
+    ck = torch.load(ckpt, weights_only=True)
+    ck["history"] = [{k: v for k, v in r.items() if k != "skipped_steps"} for r in ck["history"]]
+    torch.save(ck, ckpt)
+    assert tr.train_emulator(str(data[0]), str(data[1]), hyper=hyper, **kw)["completed"]
+    df = pd.read_csv(tmp_path / "m.csv")
+    assert df["epoch"].tolist() == [1, 2, 3, 4]
+    assert df["skipped_steps"].isna().tolist() == [True, True, False, False]
+    assert (df["skipped_steps"].iloc[2:] == 0).all()
+
+
 def test_hyper_validation():
     with pytest.raises(ValueError, match="missing"):
         tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})

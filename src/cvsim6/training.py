@@ -391,8 +391,9 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
         w = csv.DictWriter(f, fieldnames=columns)
         if mode == "w":
             w.writeheader()
-        for r in rows:
-            w.writerow({k: (int(r[k]) if k in ("epoch", "skipped_steps") else repr(float(r[k]))) for k in columns})
+        for r in rows:  # a column the row lacks (a checkpoint of an older version) stays empty
+            w.writerow({k: ("" if k not in r else int(r[k]) if k in ("epoch", "skipped_steps") else repr(float(r[k])))
+                        for k in columns})
 
 
 # ----------------------------------------------------------------------------- generic loop

@@ -349,6 +349,63 @@ def test_resume_from_a_checkpoint_without_skipped_steps(data, tmp_path):
     assert (df["skipped_steps"].iloc[2:] == 0).all()
 
 
+# ----------------------------------------------------------------------------- restarts
+_RESTARTS = {"epochs": 6, "restarts": 3, "restart_epochs": 2}
+
+
+def _encdec_run(data, emulator, d, hyper, **kw):
+    d.mkdir(exist_ok=True)
+    return tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                    hyper=ENCDEC | hyper, seed=3, noise_level=0.25, device="cpu", progress=False,
+                                    checkpoint_every=2, **_paths(d, "m"), **kw)
+
+
+def _drop_timing(df):
+    return df.drop(columns=["seconds", "cpu_seconds"]).reset_index(drop=True)
+
+
+def test_restarts_continue_the_candidate_with_the_lowest_test_loss(data, emulator, tmp_path):
+    assert _encdec_run(data, emulator, tmp_path / "r", _RESTARTS)["completed"]
+    info = torch.load(tmp_path / "r" / "m.pt", weights_only=True)["info"]["restart"]
+    seeds = [tr.candidate_seed(3, c) for c in range(3)]
+    assert info["seeds"] == seeds and seeds[0] == 3 and len(set(seeds)) == 3 and info["epochs"] == 2
+    # each candidate's own losses file holds the score it was chosen by
+    cand = [pd.read_csv(tmp_path / "r" / f"m.pt.ckpt.candidate{c}.csv") for c in range(3)]
+    assert [df["epoch"].tolist() for df in cand] == [[1, 2]] * 3
+    assert info["test_loss"] == [float(df["test_loss"].iloc[-1]) for df in cand]
+    assert len(set(info["test_loss"])) == 3  # different initializations
+    assert info["chosen"] == int(np.argmin(info["test_loss"]))
+    # the run's history starts with the chosen candidate's epochs and goes on to the end
+    run = pd.read_csv(tmp_path / "r" / "m.csv")
+    assert run["epoch"].tolist() == list(range(1, 7))
+    pd.testing.assert_frame_equal(_drop_timing(run.iloc[:2]), _drop_timing(cand[info["chosen"]]))
+    # candidate 0 is the run without restarts, stopped at the choice
+    _encdec_run(data, emulator, tmp_path / "plain", {"epochs": 6}, max_epochs_this_run=2)
+    a = torch.load(tmp_path / "plain" / "m.pt.ckpt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "r" / "m.pt.ckpt.candidate0", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+    # interrupted during the second candidate, then rerun: the same choice and weights
+    part = _encdec_run(data, emulator, tmp_path / "split", _RESTARTS, max_epochs_this_run=3)
+    assert not part["completed"] and not (tmp_path / "split" / "m.pt.ckpt").exists()
+    assert torch.load(tmp_path / "split" / "m.pt.ckpt.candidate1", weights_only=True)["epoch"] == 1
+    assert _encdec_run(data, emulator, tmp_path / "split", _RESTARTS)["completed"]
+    _assert_same_weights(tmp_path / "r" / "m.pt", tmp_path / "split" / "m.pt")
+    assert torch.load(tmp_path / "split" / "m.pt", weights_only=True)["info"]["restart"] == info
+
+
+def test_restarts_that_tie_continue_candidate_0_exactly_as_a_run_without_them(data, emulator, tmp_path,
+                                                                               monkeypatch):
+    monkeypatch.setattr(tr, "candidate_seed", lambda seed, c: seed)  # three identical candidates
+    assert _encdec_run(data, emulator, tmp_path / "r", _RESTARTS)["completed"]
+    info = torch.load(tmp_path / "r" / "m.pt", weights_only=True)["info"]["restart"]
+    assert info["chosen"] == 0 and len(set(info["test_loss"])) == 1
+    assert _encdec_run(data, emulator, tmp_path / "plain", {"epochs": 6})["completed"]
+    _assert_same_weights(tmp_path / "plain" / "m.pt", tmp_path / "r" / "m.pt")
+    pd.testing.assert_frame_equal(_drop_timing(pd.read_csv(tmp_path / "plain" / "m.csv")),
+                                  _drop_timing(pd.read_csv(tmp_path / "r" / "m.csv")))
+
+
 def test_hyper_validation():
     with pytest.raises(ValueError, match="missing"):
         tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})
@@ -372,7 +429,12 @@ def test_hyper_validation():
     for bad in (-1, 2.5, ENCDEC["epochs"] + 1):
         with pytest.raises(ValueError, match="kl_warmup_epochs"):
             tr.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
+    for bad in ({"restarts": 0}, {"restarts": 2}, {"restarts": 2, "restart_epochs": ENCDEC["epochs"]},
+                {"restarts": 2, "restart_epochs": 5, "eval_every": 2}):
+        with pytest.raises(ValueError, match="restart"):
+            tr.check_hyper("encoder_decoder", ENCDEC | bad)
     h = tr.check_hyper("emulator", EMU)
+    assert h["restarts"] == 1
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
     assert h["lr_schedule"] == "step" and h["eval_every"] == 1 and not h["keep_best"] and h["dtype"] == "float32"
     # the cosine schedule needs no step parameters

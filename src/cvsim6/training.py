@@ -19,7 +19,9 @@ e.g. overflowed by a loss spike, is skipped: no update, left out of the epoch's 
 counted in the losses CSV's ``skipped_steps`` column and logged), ``eval_every`` (epochs between test-loss
 evaluations, default 1; the last epoch is always evaluated), ``keep_best`` (save the weights of
 the evaluation with the lowest test loss, default False: the last epoch's), ``dtype``
-("float32", default, or "float64", as the paper's code).
+("float32", default, or "float64", as the paper's code), ``restarts`` (default 1; k > 1: best of k initializations, each trained the
+first ``restart_epochs`` epochs of the schedule, the lowest test loss there trains on; see
+:func:`_train`).
 
 * emulator: ``hidden``, ``layers`` (Linear layers in total); optional ``activation`` ("silu"),
   ``variance_floor`` (default None: the loss is the MSE of the standardized outputs, as the
@@ -99,7 +101,7 @@ log = logging.getLogger(__name__)
 _COMMON_REQUIRED = ("epochs", "batch_size", "lr")
 _COMMON_OPTIONAL = {"weight_decay": 0.0, "grad_clip": 0.0, "lr_schedule": "step", "lr_step": None,
                     "lr_gamma": None, "warmup_epochs": 0, "lr_final": 0.0, "eval_every": 1,
-                    "keep_best": False, "dtype": "float32"}
+                    "keep_best": False, "dtype": "float32", "restarts": 1, "restart_epochs": 0}
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
     "emulator": (_COMMON_REQUIRED + ("hidden", "layers"),
@@ -137,6 +139,13 @@ def check_hyper(stage: str, hyper: dict) -> dict:
             raise ValueError(f"{stage} hyperparameter {k} must be a positive integer, got {h[k]!r}")
     if int(h["warmup_epochs"]) != h["warmup_epochs"] or not 0 <= h["warmup_epochs"] < h["epochs"]:
         raise ValueError(f"{stage} hyperparameter warmup_epochs must be an integer in [0, epochs), got {h['warmup_epochs']!r}")
+    if int(h["restarts"]) != h["restarts"] or h["restarts"] < 1:
+        raise ValueError(f"{stage} hyperparameter restarts must be a positive integer, got {h['restarts']!r}")
+    if h["restarts"] > 1 and (int(h["restart_epochs"]) != h["restart_epochs"]
+                              or not 1 <= h["restart_epochs"] < h["epochs"]
+                              or h["restart_epochs"] % h["eval_every"]):
+        raise ValueError(f"{stage} hyperparameter restart_epochs must be an integer in [1, epochs) and a multiple of "
+                         f"eval_every ({h['eval_every']}) when restarts > 1, got {h['restart_epochs']!r}")
     if not 0.0 <= float(h["lr_final"]) <= 1.0:
         raise ValueError(f"{stage} hyperparameter lr_final must be in [0, 1], got {h['lr_final']!r}")
     f = h["variance_floor"] if stage == "emulator" else None
@@ -406,10 +415,13 @@ def _save_checkpoint(path: Path, payload: dict) -> None:
 
 def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: str, losses: str,
          checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
-         checkpoint_every: int, progress: bool, max_cpu_seconds: float | None = None) -> dict:
+         checkpoint_every: int, progress: bool, max_cpu_seconds: float | None = None,
+         until_epoch: int | None = None, extra: dict | None = None) -> dict:
     """Train ``stage.model`` (already seeded, built and on the device); see module docstring.
     ``max_cpu_seconds`` (benchmarks) stops after the epoch in which the run's CPU time, summed
-    over epochs, reaches it (checkpoint only, as ``max_epochs_this_run``)."""
+    over epochs, reaches it (checkpoint only, as ``max_epochs_this_run``); ``until_epoch`` stops
+    after that epoch of the schedule (restart candidates). ``extra`` (JSON-able dict) is kept in
+    the checkpoint, restored from it on resume, and added to the saved model's ``info``."""
     from tqdm import tqdm
 
     device = stage.device
@@ -442,6 +454,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             torch.set_rng_state(ck["torch_rng"])
             history, start = list(ck["history"]), int(ck["epoch"])
             best = ck.get("best", best)
+            extra = ck.get("extra") or extra
             log.info("%s: resuming from %s at epoch %d/%d", stage.name, ckpt_path, start, epochs)
         elif ck is not None:
             log.warning("%s: checkpoint %s is from a different run; starting over", stage.name, ckpt_path)
@@ -452,10 +465,12 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             "fingerprint": fingerprint, "epoch": epoch, "model": model.state_dict(),
             "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
             "generator": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": history,
-            "best": best,
+            "best": best, "extra": extra or {},
         })
 
     stop = epochs if max_epochs_this_run is None else min(epochs, start + int(max_epochs_this_run))
+    if until_epoch is not None:
+        stop = min(stop, int(until_epoch))
     n = stage.n_train
     n_full = (n // bs) * bs
     bounds = [(b, min(n, b + bs)) for b in range(0, n, bs) if min(n, b + bs) - b >= 2 or b < n_full]
@@ -524,7 +539,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     done = len(history)
     save_ckpt(done)
     tested = [r for r in history if math.isfinite(r["test_loss"])]
-    result = {"completed": done >= epochs, "epochs_done": done, "cpu_seconds": cpu_used,
+    result = {"completed": done >= epochs, "epochs_done": done, "epochs_this_run": done - start, "cpu_seconds": cpu_used,
               "train_loss": history[-1]["train_loss"] if history else None,
               "test_loss": tested[-1]["test_loss"] if tested else None}
     if not result["completed"]:
@@ -533,11 +548,89 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
         model.load_state_dict(best["model"])
         result["test_loss"] = best["loss"]
     model.eval()
-    info = {**info, "epochs_done": done, "final_train_loss": result["train_loss"],
+    info = {**info, **(extra or {}), "epochs_done": done, "final_train_loss": result["train_loss"],
             "final_test_loss": result["test_loss"], "best_epoch": best["epoch"] if keep_best else done,
             "device": str(device), "torch": str(torch.__version__)}
     nw.save_model(model, model_path, info=info)
     return result
+
+
+def candidate_seed(seed: int, candidate: int) -> int:
+    """Seed of restart candidate ``candidate`` (initial weights and training stream): ``seed``
+    itself for candidate 0, so that a run with restarts in which candidate 0 wins continues
+    exactly as the run without restarts; independent derived seeds for the others."""
+    return int(seed) if candidate == 0 else derived_seed(seed, 1000 + int(candidate))
+
+
+def _candidate_path(ckpt: Path, candidate: int) -> Path:
+    return ckpt.with_name(f"{ckpt.name}.candidate{candidate}")
+
+
+def _checkpoint_fingerprint(path: Path) -> str | None:
+    if not path.exists():
+        return None
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True).get("fingerprint")
+    except Exception:  # unreadable: treated as absent
+        return None
+
+
+def _train(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerprint: str, model_path: str,
+           losses: str, checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
+           checkpoint_every: int, progress: bool, max_cpu_seconds: float | None) -> dict:
+    """:func:`_fit` with best-of-``restarts`` initializations.
+
+    ``make_stage(init_seed)`` builds the stage with a model seeded by ``torch.manual_seed(init_seed)``
+    (everything else, test noise included, from the master ``seed``). With ``restarts`` k > 1, k
+    candidates (seeds :func:`candidate_seed`) each train the first ``restart_epochs`` epochs of the
+    full schedule, exactly as they would alone, with their own checkpoint and losses CSV
+    (``<checkpoint>.candidate<c>`` and ``.csv``); the one with the lowest test loss at that epoch
+    (the criterion of ``keep_best``; ties to the lower index) becomes the run's checkpoint and
+    trains to the end. Every phase resumes from its checkpoint; ``max_epochs_this_run`` and
+    ``max_cpu_seconds`` count across the candidates. The model's ``info`` gets ``restart``: the
+    candidates' seeds and test losses and the chosen index.
+    """
+    k = int(hyper["restarts"])
+    if k == 1:
+        return _fit(make_stage(seed), hyper, seed, fingerprint, model_path, losses, checkpoint, info,
+                    max_epochs_this_run, checkpoint_every, progress, max_cpu_seconds)
+    ckpt = Path(checkpoint) if checkpoint else Path(str(model_path) + ".ckpt")
+    r = int(hyper["restart_epochs"])
+    budget, cpu_left = max_epochs_this_run, max_cpu_seconds
+    if _checkpoint_fingerprint(ckpt) != fingerprint:
+        scores: list[float] = []
+        for c in range(k):
+            cseed, path = candidate_seed(seed, c), _candidate_path(ckpt, c)
+            try:
+                res = _fit(make_stage(cseed), hyper, cseed, f"{fingerprint}:candidate{c}", model_path,
+                           str(path) + ".csv", str(path), info, budget, checkpoint_every, progress, cpu_left,
+                           until_epoch=r)
+            except FloatingPointError as exc:  # a diverged candidate loses (a rerun replays it)
+                log.warning("%s: restart candidate %d diverged: %s", info.get("stage"), c, exc)
+                scores.append(math.inf)
+                continue
+            if budget is not None:
+                budget -= res["epochs_this_run"]
+            if cpu_left is not None:
+                cpu_left -= res["cpu_seconds"]
+            if res["epochs_done"] < r:  # stopped by the budget: resume later
+                return {**res, "completed": False}
+            ck = torch.load(path, map_location="cpu", weights_only=True)
+            scores.append(float(ck["history"][r - 1]["test_loss"]))
+            log.info("%s: restart candidate %d (seed %d): test loss %.6g at epoch %d", info.get("stage"), c, cseed,
+                     scores[-1], r)
+        if not any(math.isfinite(x) for x in scores):
+            raise FloatingPointError(f"{info.get('stage')}: all {k} restart candidates diverged")
+        chosen = int(np.argmin(scores))
+        log.info("%s: candidate %d chosen of %d", info.get("stage"), chosen, k)
+        ck = torch.load(_candidate_path(ckpt, chosen), map_location="cpu", weights_only=True)
+        ck["fingerprint"] = fingerprint
+        ck["extra"] = {"restart": {"epochs": r, "chosen": chosen,
+                                   "seeds": [candidate_seed(seed, c) for c in range(k)], "test_loss": scores}}
+        _save_checkpoint(ckpt, ck)
+    # the run's checkpoint holds the chosen candidate: _fit resumes it (its weights and streams)
+    return _fit(make_stage(seed), hyper, seed, fingerprint, model_path, losses, checkpoint, info,
+                budget, checkpoint_every, progress, cpu_left)
 
 
 def _setup(stage: str, hyper: dict, device: str, threads: int) -> tuple[dict, torch.device, torch.dtype]:
@@ -574,19 +667,22 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
     h, dev, dtype = _setup("emulator", hyper, device, threads)
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
-    torch.manual_seed(seed)
-    net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"])
-    net.x_scaler.fit(v_tr)
-    net.y_scaler.fit(y_tr)
-    net.to(dev, dtype)
-    y_tr_std = net.y_scaler.transform(y_tr)
-    weighting = None if h["variance_floor"] is None else variance_floor_matrix(y_tr_std, h["variance_floor"])
-    st = EmulatorStage(net, net.x_scaler.transform(v_tr), y_tr_std,
-                       net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype, weighting)
+
+    def make_stage(init_seed: int) -> EmulatorStage:
+        torch.manual_seed(init_seed)
+        net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"])
+        net.x_scaler.fit(v_tr)
+        net.y_scaler.fit(y_tr)
+        net.to(dev, dtype)
+        y_tr_std = net.y_scaler.transform(y_tr)
+        weighting = None if h["variance_floor"] is None else variance_floor_matrix(y_tr_std, h["variance_floor"])
+        return EmulatorStage(net, net.x_scaler.transform(v_tr), y_tr_std,
+                             net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype, weighting)
+
     fp = _fingerprint(stage="emulator", hyper=h, seed=seed, data=_digest(v_tr, y_tr, v_te, y_te), fmt=nw.FORMAT)
     info = {"stage": "emulator", "hyper": h, "seed": seed, "noise_level": 0.0, "n_train": len(v_tr), "n_test": len(v_te)}
-    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                progress, max_cpu_seconds)
+    return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                  progress, max_cpu_seconds)
 
 
 def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
@@ -599,22 +695,25 @@ def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed
     h, dev, dtype = _setup("flow", hyper, device, threads)
     _, y_tr = load_split(train)
     _, y_te = load_split(test)
-    torch.manual_seed(seed)
-    net = nw.RealNVP(hidden=h["hidden"], blocks=h["blocks"], layers_per_block=h["layers_per_block"],
-                     batchnorm=bool(h["batchnorm"]))
-    net.y_scaler.fit(y_tr)
-    if h["noisy_scaling"]:
-        inflate_output_scale(net.y_scaler, noise_level)
-    net.to(dev, dtype)
-    test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
-    st = FlowStage(net, net.y_scaler.transform(y_tr), net.y_scaler.transform(y_te), noise_level, test_gen, dev,
-                   dtype)
+
+    def make_stage(init_seed: int) -> FlowStage:
+        torch.manual_seed(init_seed)
+        net = nw.RealNVP(hidden=h["hidden"], blocks=h["blocks"], layers_per_block=h["layers_per_block"],
+                         batchnorm=bool(h["batchnorm"]))
+        net.y_scaler.fit(y_tr)
+        if h["noisy_scaling"]:
+            inflate_output_scale(net.y_scaler, noise_level)
+        net.to(dev, dtype)
+        test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
+        return FlowStage(net, net.y_scaler.transform(y_tr), net.y_scaler.transform(y_te), noise_level, test_gen,
+                         dev, dtype)
+
     fp = _fingerprint(stage="flow", hyper=h, seed=seed, noise=float(noise_level), data=_digest(y_tr, y_te),
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "flow", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(y_tr), "n_test": len(y_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                progress, max_cpu_seconds)
+    return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                  progress, max_cpu_seconds)
 
 
 def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str,
@@ -632,23 +731,26 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
     if not isinstance(emu, nw.Emulator):
         raise ValueError(f"{emulator}: expected an emulator model, got {type(emu).__name__}")
     emu.to(dtype=dtype).eval().requires_grad_(False)
-    torch.manual_seed(seed)
-    net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
-                            encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
-                            decoder_layers=h["decoder_layers"], activation=h["activation"])
-    net.x_scaler.fit(v_tr)
-    net.y_scaler.fit(y_tr)
-    if h["noisy_scaling"]:
-        inflate_output_scale(net.y_scaler, noise_level)
-    net.to(dev, dtype)
-    test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
-    st = EncoderDecoderStage(net, emu, net.x_scaler.transform(v_tr), net.y_scaler.transform(y_tr),
-                             net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), noise_level, h,
-                             test_gen, dev, dtype)
+
+    def make_stage(init_seed: int) -> EncoderDecoderStage:
+        torch.manual_seed(init_seed)
+        net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
+                                encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
+                                decoder_layers=h["decoder_layers"], activation=h["activation"])
+        net.x_scaler.fit(v_tr)
+        net.y_scaler.fit(y_tr)
+        if h["noisy_scaling"]:
+            inflate_output_scale(net.y_scaler, noise_level)
+        net.to(dev, dtype)
+        test_gen = torch.Generator().manual_seed(derived_seed(seed, 2))
+        return EncoderDecoderStage(net, emu, net.x_scaler.transform(v_tr), net.y_scaler.transform(y_tr),
+                                   net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), noise_level, h,
+                                   test_gen, dev, dtype)
+
     fp = _fingerprint(stage="encoder_decoder", hyper=h, seed=seed, noise=float(noise_level),
                       data=_digest(v_tr, y_tr, v_te, y_te), emulator=_file_digest(emulator),
                       noise_std=noise_std().tolist(), fmt=nw.FORMAT)
     info = {"stage": "encoder_decoder", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(v_tr), "n_test": len(v_te), "label": f"delta={noise_level:g}"}
-    return _fit(st, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                progress, max_cpu_seconds)
+    return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
+                  progress, max_cpu_seconds)

@@ -269,6 +269,36 @@ def test_changed_hyper_ignores_checkpoint(data, tmp_path):
     assert df["epoch"].tolist() == [1, 2, 3, 4] and df["lr"].iloc[0] == 1e-3
 
 
+def test_checkpoint_of_other_training_code_is_not_reused(data, tmp_path, monkeypatch):
+    """A finished checkpoint is reused by the code that wrote it (nothing retrained) and never by
+    other training code: a rerun after a code change retrains instead of re-saving old weights."""
+    kw = dict(hyper=EMU | {"epochs": 3}, seed=1, device="cpu", progress=False, **_paths(tmp_path, "m"))
+    assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 3
+    assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 0
+    real = tr.training_code_digest()
+    assert len(real) == 64 and real == tr.training_code_digest()
+    monkeypatch.setattr(tr, "training_code_digest", lambda: "edited" + real[6:])
+    assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 3
+
+
+def test_non_finite_loss_keeps_the_last_good_checkpoint(data, emulator, tmp_path, monkeypatch):
+    orig, calls = tr.EncoderDecoderStage.batch_loss, {"n": 0}
+
+    def batch_loss(self, idx):  # a nan loss in the second epoch (13 steps per epoch)
+        loss, parts = orig(self, idx)
+        calls["n"] += 1
+        return (loss * math.nan if calls["n"] == 16 else loss), parts
+
+    monkeypatch.setattr(tr.EncoderDecoderStage, "batch_loss", batch_loss)
+    with pytest.raises(FloatingPointError, match="non-finite loss at epoch 2"):
+        _encdec_run(data, emulator, tmp_path, {"epochs": 4}, checkpoint_every=1)
+    good = torch.load(tmp_path / "m.pt.ckpt", weights_only=True)
+    failed = torch.load(tmp_path / "m.pt.ckpt.nonfinite", weights_only=True)
+    assert good["epoch"] == 1 and failed["epoch"] == 2
+    assert all(torch.isfinite(v).all() for v in good["model"].values())
+    assert any(not torch.isfinite(v).all() for v in failed["model"].values())
+
+
 def test_seed_controls_result(data, tmp_path):
     def run(name, seed):
         tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"epochs": 2}, seed=seed, device="cpu",
@@ -353,11 +383,11 @@ def test_resume_from_a_checkpoint_without_skipped_steps(data, tmp_path):
 _RESTARTS = {"epochs": 6, "restarts": 3, "restart_epochs": 2}
 
 
-def _encdec_run(data, emulator, d, hyper, **kw):
+def _encdec_run(data, emulator, d, hyper, checkpoint_every=2, **kw):
     d.mkdir(exist_ok=True)
     return tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
                                     hyper=ENCDEC | hyper, seed=3, noise_level=0.25, device="cpu", progress=False,
-                                    checkpoint_every=2, **_paths(d, "m"), **kw)
+                                    checkpoint_every=checkpoint_every, **_paths(d, "m"), **kw)
 
 
 def _drop_timing(df):

@@ -74,7 +74,9 @@ Training procedure
   ``checkpoint_every`` epochs and at the end, written atomically to ``checkpoint`` (default
   ``model + ".ckpt"``). A rerun with the same arguments resumes from it and yields the same
   final weights as an uninterrupted run. A checkpoint whose fingerprint (stage, hyper, seed,
-  noise level, data and emulator contents) differs is ignored and overwritten.
+  noise level, data and emulator contents, the training code's digest) differs is ignored and
+  overwritten. A non-finite loss ends the run with ``FloatingPointError``; the last good
+  checkpoint stays, the failed state goes to ``<checkpoint>.nonfinite`` for inspection.
 """
 from __future__ import annotations
 
@@ -460,8 +462,8 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             log.warning("%s: checkpoint %s is from a different run; starting over", stage.name, ckpt_path)
     _write_rows(losses_path, columns, history, "w")
 
-    def save_ckpt(epoch: int) -> None:
-        _save_checkpoint(ckpt_path, {
+    def save_ckpt(epoch: int, path: Path = ckpt_path) -> None:
+        _save_checkpoint(path, {
             "fingerprint": fingerprint, "epoch": epoch, "model": model.state_dict(),
             "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
             "generator": gen.get_state(), "torch_rng": torch.get_rng_state(), "history": history,
@@ -526,9 +528,10 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
         history.append(row)
         _write_rows(losses_path, columns, [row], "a")
         if not (math.isfinite(row["train_loss"]) and (math.isfinite(test_loss) or not evaluated)):
-            bar.close()
-            save_ckpt(epoch + 1)
-            raise FloatingPointError(f"{stage.name}: non-finite loss at epoch {epoch + 1}: {row}")
+            bar.close()  # the last good checkpoint stays; the failed state is kept beside it
+            failed = ckpt_path.with_name(ckpt_path.name + ".nonfinite")
+            save_ckpt(epoch + 1, failed)
+            raise FloatingPointError(f"{stage.name}: non-finite loss at epoch {epoch + 1} (its state: {failed}): {row}")
         bar.update(1)
         bar.set_postfix_str(f"train={row['train_loss']:.4g} test={test_loss:.4g} lr={lr:.3g}", refresh=False)
         if (epoch + 1) % checkpoint_every == 0 and epoch + 1 < stop:
@@ -650,7 +653,24 @@ def inflate_output_scale(scaler: nw.Standardizer, noise_level: float) -> None:
         scaler.std.copy_(torch.sqrt(scaler.std.double() ** 2 + s ** 2).to(scaler.std))
 
 
+def training_code_digest() -> str:
+    """sha256 over the source of ``cvsim6.training`` and every package module it imports
+    (:func:`cvsim6.codegraph.module_closure`, the files the workflow's training rules declare as
+    their ``code`` input)."""
+    from .codegraph import module_closure
+
+    h = hashlib.sha256()
+    for f in module_closure("training", str(Path(__file__).parent)):
+        h.update(Path(f).name.encode())
+        h.update(Path(f).read_bytes())
+    return h.hexdigest()
+
+
 def _fingerprint(**items) -> str:
+    """Identity of a training run, kept in its checkpoints: the given items plus the training
+    code's digest, so a checkpoint (finished ones included) is reused only by the code that
+    wrote it and a rule rerun after a code change retrains instead of re-saving old weights."""
+    items = {**items, "code": training_code_digest()}
     return hashlib.sha256(json.dumps(items, sort_keys=True, default=str).encode()).hexdigest()
 
 

@@ -137,8 +137,9 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     top = _set_limits(ax, loss_values, healthy)
     if top is not None:
         cuts["loss"] = _mark_cut(ax, epochs, loss_values, top)
-    if "skipped_steps" in df and (df["skipped_steps"] > 0).any():
-        skipped = df.loc[df["skipped_steps"] > 0, "epoch"].astype(int).tolist()
+    has_skips = df["skipped_steps"] > 0 if "skipped_steps" in df else None
+    if has_skips is not None and has_skips.any():
+        skipped = df.loc[has_skips, "epoch"].astype(int).tolist()
         for k, e in enumerate(skipped):
             ax.axvline(e, color="0.35", ls=":", lw=1.0, zorder=0,
                        label=f"skipped step (non-finite gradient): {int(df['skipped_steps'].sum())} in "

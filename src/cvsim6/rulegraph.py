@@ -49,9 +49,10 @@ def assign_layers(g: nx.DiGraph) -> dict[str, int]:
     source); then, bottom-up, every rule with users is pulled down to just above its
     highest user, so a leaf input such as a table rule sits next to the rule that takes it."""
     layer: dict[str, int] = {}
-    for v in nx.topological_sort(g):
+    order = list(nx.topological_sort(g))
+    for v in order:
         layer[v] = max((layer[u] + 1 for u in g.predecessors(v)), default=0)
-    for v in reversed(list(nx.topological_sort(g))):
+    for v in reversed(order):
         users = list(g.successors(v))
         if users:
             layer[v] = min(layer[w] for w in users) - 1

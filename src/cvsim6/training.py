@@ -390,10 +390,11 @@ class EncoderDecoderStage(_Stage):
 
 
 # ----------------------------------------------------------------------------- outputs
-def _columns(stage: _Stage) -> list[str]:
+def _columns(stage: _Stage, grad_clip: float = 0.0) -> list[str]:
+    """Losses-CSV columns: ``skipped_steps`` last when the gradient guard is on."""
     cols = ["epoch", "train_loss", "test_loss", "lr", "seconds", "cpu_seconds"]
     cols += [f"train_{p}" for p in stage.parts] + [f"test_{p}" for p in stage.parts]
-    return cols
+    return cols + (["skipped_steps"] if grad_clip > 0 else [])
 
 
 def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> None:
@@ -438,7 +439,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     clip = float(hyper["grad_clip"])
     ckpt_path = Path(checkpoint) if checkpoint else Path(str(model_path) + ".ckpt")
     losses_path = Path(losses)
-    columns = _columns(stage) + (["skipped_steps"] if clip > 0 else [])
+    columns = _columns(stage, clip)
 
     history: list[dict] = []
     start = 0

@@ -37,8 +37,13 @@ METRIC = {"emulator": ("test_loss", "held-out MSE (standardized outputs)"),
 
 
 def schedule(config_file: Path, study: str, network: str) -> dict:
-    """Hyperparameters of ``network`` in ``study`` from a workflow config file."""
-    return dict(yaml.safe_load(config_file.read_text())["training"]["studies"][study][network])
+    """Hyperparameters of ``network`` in ``study`` from a workflow config file, with one
+    initialization: ``restarts``/``restart_epochs`` are dropped, so every schedule's curve is one
+    training from the seed (restart candidate 0) and its losses file fills from the first epoch."""
+    h = dict(yaml.safe_load(config_file.read_text())["training"]["studies"][study][network])
+    h.pop("restarts", None)
+    h.pop("restart_epochs", None)
+    return h
 
 
 def _run(job: tuple) -> pd.DataFrame:

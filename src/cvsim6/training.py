@@ -95,6 +95,7 @@ import torch
 from torch import nn
 
 from . import networks as nw
+from .codegraph import module_closure
 from .datasets import load_split
 from .registry import noise_std
 
@@ -658,8 +659,6 @@ def training_code_digest() -> str:
     """sha256 over the source of ``cvsim6.training`` and every package module it imports
     (:func:`cvsim6.codegraph.module_closure`, the files the workflow's training rules declare as
     their ``code`` input)."""
-    from .codegraph import module_closure
-
     h = hashlib.sha256()
     for f in module_closure("training", str(Path(__file__).parent)):
         h.update(Path(f).name.encode())

@@ -19,9 +19,9 @@ e.g. overflowed by a loss spike, is skipped: no update, left out of the epoch's 
 counted in the losses CSV's ``skipped_steps`` column and logged), ``eval_every`` (epochs between test-loss
 evaluations, default 1; the last epoch is always evaluated), ``keep_best`` (save the weights of
 the evaluation with the lowest test loss, default False: the last epoch's), ``dtype``
-("float32", default, or "float64", as the paper's code), ``restarts`` (default 1; k > 1: best of k initializations, each trained the
-first ``restart_epochs`` epochs of the schedule, the lowest test loss there trains on; see
-:func:`_train`).
+("float32", default, or "float64", as the paper's code), ``restarts`` (default 1; k > 1: the
+best of k initializations, each trained the first ``restart_epochs`` epochs of the schedule,
+the one with the lowest test loss there trains on; see :func:`_train`).
 
 * emulator: ``hidden``, ``layers`` (Linear layers in total); optional ``activation`` ("silu"),
   ``variance_floor`` (default None: the loss is the MSE of the standardized outputs, as the
@@ -544,7 +544,8 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
     done = len(history)
     save_ckpt(done)
     tested = [r for r in history if math.isfinite(r["test_loss"])]
-    result = {"completed": done >= epochs, "epochs_done": done, "epochs_this_run": done - start, "cpu_seconds": cpu_used,
+    result = {"completed": done >= epochs, "epochs_done": done, "epochs_this_run": done - start,
+              "cpu_seconds": cpu_used,
               "train_loss": history[-1]["train_loss"] if history else None,
               "test_loss": tested[-1]["test_loss"] if tested else None}
     if not result["completed"]:

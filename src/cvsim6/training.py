@@ -410,6 +410,18 @@ def _write_rows(path: Path, columns: list[str], rows: list[dict], mode: str) -> 
 
 
 # ----------------------------------------------------------------------------- generic loop
+def _read_checkpoint(path: Path) -> dict | None:
+    """The checkpoint at ``path``, or None when there is none or it is unreadable (e.g.
+    truncated: logged, and the run starts over)."""
+    if not path.exists():
+        return None
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        log.warning("ignoring unreadable checkpoint %s (%s)", path, exc)
+        return None
+
+
 def _save_checkpoint(path: Path, payload: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -444,13 +456,9 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
 
     history: list[dict] = []
     start = 0
-    if ckpt_path.exists():
-        try:
-            ck = torch.load(ckpt_path, map_location="cpu", weights_only=True)
-        except Exception as exc:  # unreadable (e.g. truncated) checkpoint: start over
-            log.warning("ignoring unreadable checkpoint %s (%s)", ckpt_path, exc)
-            ck = None
-        if ck is not None and ck.get("fingerprint") == fingerprint:
+    ck = _read_checkpoint(ckpt_path)
+    if ck is not None:
+        if ck.get("fingerprint") == fingerprint:
             model.load_state_dict(ck["model"])
             opt.load_state_dict(ck["optimizer"])
             sched.load_state_dict(ck["scheduler"])
@@ -460,7 +468,7 @@ def _fit(stage: _Stage, hyper: dict, seed: int, fingerprint: str, model_path: st
             best = ck.get("best", best)
             extra = ck.get("extra") or extra
             log.info("%s: resuming from %s at epoch %d/%d", stage.name, ckpt_path, start, epochs)
-        elif ck is not None:
+        else:
             log.warning("%s: checkpoint %s is from a different run; starting over", stage.name, ckpt_path)
     _write_rows(losses_path, columns, history, "w")
 
@@ -572,15 +580,6 @@ def _candidate_path(ckpt: Path, candidate: int) -> Path:
     return ckpt.with_name(f"{ckpt.name}.candidate{candidate}")
 
 
-def _checkpoint_fingerprint(path: Path) -> str | None:
-    if not path.exists():
-        return None
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True).get("fingerprint")
-    except Exception:  # unreadable: treated as absent
-        return None
-
-
 def _train(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerprint: str, model_path: str,
            losses: str, checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
            checkpoint_every: int, progress: bool, max_cpu_seconds: float | None) -> dict:
@@ -603,7 +602,7 @@ def _train(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerpr
     ckpt = Path(checkpoint) if checkpoint else Path(str(model_path) + ".ckpt")
     r = int(hyper["restart_epochs"])
     budget, cpu_left = max_epochs_this_run, max_cpu_seconds
-    if _checkpoint_fingerprint(ckpt) != fingerprint:
+    if (_read_checkpoint(ckpt) or {}).get("fingerprint") != fingerprint:
         scores: list[float] = []
         for c in range(k):
             cseed, path = candidate_seed(seed, c), _candidate_path(ckpt, c)
@@ -621,8 +620,7 @@ def _train(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerpr
                 cpu_left -= res["cpu_seconds"]
             if res["epochs_done"] < r:  # stopped by the budget: resume later
                 return {**res, "completed": False}
-            ck = torch.load(path, map_location="cpu", weights_only=True)
-            scores.append(float(ck["history"][r - 1]["test_loss"]))
+            scores.append(float(res["test_loss"]))  # evaluated at epoch r (a multiple of eval_every)
             log.info("%s: restart candidate %d (seed %d): test loss %.6g at epoch %d", info.get("stage"), c, cseed,
                      scores[-1], r)
         if not any(math.isfinite(x) for x in scores):

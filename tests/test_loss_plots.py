@@ -86,3 +86,40 @@ def test_variance_floored_emulator_gets_its_own_label_and_bad_names_are_refused(
     with pytest.raises(ValueError, match="'emulator_delta0.5'"):
         lp.plot_training_losses(csv, str(tmp_path / "x.png"), "emulator_delta0.5")
     assert not (tmp_path / "x.png").exists()
+
+
+def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
+    """A network trained with restarts: its model file's restart record is read back, every
+    finite candidate score lies inside the y limits (the rejected ones may sit far above the
+    kept curve), and a diverged candidate is left out of the limits."""
+    import matplotlib.pyplot as plt
+    import torch
+
+    csv = str(_emulator_csv(tmp_path / "l.csv", False))  # losses fall from 1.1 to ~0.007
+    record = {"epochs": 50, "chosen": 1, "seeds": [7, 8, 9, 10], "test_loss": [30.0, 0.09, 5.0, float("inf")]}
+    torch.save({"format": "x", "info": {"stage": "encoder_decoder", "restart": record}}, tmp_path / "m.pt")
+    assert lp.restart_record(tmp_path / "m.pt") == record
+    torch.save({"format": "x", "info": {}}, tmp_path / "plain.pt")
+    assert lp.restart_record(tmp_path / "plain.pt") is None
+    torch.save({"format": "x"}, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="bad.pt"):
+        lp.restart_record(tmp_path / "bad.pt")
+
+    captured = {}
+    monkeypatch.setattr(lp.plt, "close", lambda fig=None: captured.setdefault("fig", fig))  # keep the figure
+    out = lp.plot_training_losses(csv, str(tmp_path / "r.png"), "encoder_decoder_delta0", "structural",
+                                  model=str(tmp_path / "m.pt"))
+    monkeypatch.undo()
+    assert out["restart"] == record and out["cut"] == {}
+    ax = captured["fig"].axes[0]
+    lo, hi = ax.get_ylim()
+    assert lo < 0.007 and 30.0 < hi < 60.0  # the worst finite candidate is in view, inf is not
+    marks = {line.get_label(): np.asarray(line.get_ydata(), float) for line in ax.get_lines()}
+    kept = [v for k, v in marks.items() if k.startswith("kept")]
+    others = [v for k, v in marks.items() if k.startswith("other")]
+    assert len(kept) == 1 and kept[0].tolist() == [0.09]
+    assert len(others) == 1 and sorted(others[0].tolist()) == [5.0, 30.0]
+    assert any("1 diverged" in k for k in marks)
+    plt.close(captured["fig"])
+    plain = lp.plot_training_losses(csv, str(tmp_path / "p.png"), "emulator", model=str(tmp_path / "plain.pt"))
+    assert plain["restart"] is None

@@ -26,13 +26,15 @@ LOSS_LABELS = {
 }
 
 
-def plot_training_losses(losses: str, figure: str, network: str, study: str = "") -> dict:
+def plot_training_losses(losses: str, figure: str, network: str, study: str = "", model: str | None = None) -> dict:
     """Workflow step: draw ``losses`` (CSV of one network's training) into ``figure`` (PNG).
     ``network`` is the file stem, e.g. ``"emulator"``, ``"flow_delta0.5"``,
     ``"encoder_decoder_delta1"`` or ``"npe_delta2"``; it sets the title and the y label (an
     emulator CSV with ``train_mse`` columns was trained with a variance floor: its loss is the
-    floored MSE). Returns the ``title``, ``ylabel`` and ``cut`` (:func:`plot_losses`' record of
-    what the axes cut) of the figure."""
+    floored MSE). ``model``, the trained network's ``.pt`` file, when given: a network trained
+    with restarts (its ``info["restart"]``) gets its candidates marked (see :func:`plot_losses`).
+    Returns the ``title``, ``ylabel``, ``cut`` (:func:`plot_losses`' record of what the axes cut)
+    and ``restart`` (the model's restart record, ``None`` without one) of the figure."""
     m = re.fullmatch(r"emulator|(flow|encoder_decoder|npe)_delta([0-9]+(?:\.[0-9]*)?)", network)
     if m is None:
         raise ValueError(f"network {network!r} is not emulator, flow_delta<d>, encoder_decoder_delta<d> or npe_delta<d>")
@@ -42,7 +44,36 @@ def plot_training_losses(losses: str, figure: str, network: str, study: str = ""
         ylabel = "MSE, output variances floored"
     where = ", ".join(x for x in (study, f"delta={float(delta):g}" if delta else "") if x)
     title = {"npe": "NPE"}.get(kind, kind) + (f" ({where})" if where else "")
-    return {"title": title, "ylabel": ylabel, "cut": plot_losses(losses, figure, title=title, ylabel=ylabel)}
+    restart = restart_record(model) if model else None
+    cut = plot_losses(losses, figure, title=title, ylabel=ylabel, restart=restart)
+    return {"title": title, "ylabel": ylabel, "cut": cut, "restart": restart}
+
+
+def restart_record(model: str | Path) -> dict | None:
+    """The restart record a network trained with restarts keeps in its ``.pt`` file's ``info``
+    (``epochs``: the epoch of the choice; ``chosen``: the candidate kept; ``seeds`` and
+    ``test_loss``: per candidate, ``inf`` for one that diverged), ``None`` without restarts."""
+    import torch
+
+    payload = torch.load(model, map_location="cpu", weights_only=True)
+    if not isinstance(payload, dict) or "info" not in payload:
+        raise ValueError(f"{model}: not a trained-network file (no 'info')")
+    return payload["info"].get("restart")
+
+
+def _mark_restart(ax, restart: dict) -> None:
+    """The candidates' test losses at the epoch of the choice: the kept one filled, the others
+    hollow, a dashed line at that epoch; the legend names the choice and any diverged candidate."""
+    r, chosen = int(restart["epochs"]), int(restart["chosen"])
+    scores = np.asarray(restart["test_loss"], dtype=float)
+    ax.axvline(r, color="0.4", ls="--", lw=1.0, zorder=0)
+    others = [c for c in range(scores.size) if c != chosen and np.isfinite(scores[c])]
+    diverged = [c for c in range(scores.size) if not np.isfinite(scores[c])]
+    ax.plot([r] * len(others), scores[others], ls="none", marker="o", ms=7, mfc="none", mec="black",
+            label=f"other initializations at epoch {r} ({len(others)})"
+                  + (f"; {len(diverged)} diverged" if diverged else ""))
+    ax.plot([r], [scores[chosen]], ls="none", marker="o", ms=7, color="black",
+            label=f"kept: best test loss of {scores.size} at epoch {r}")
 
 
 def _log_axis(ax, values: np.ndarray) -> None:
@@ -111,7 +142,8 @@ def _runs(epochs: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), stops.tolist()))
 
 
-def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", ylabel: str = "loss") -> dict:
+def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", ylabel: str = "loss",
+                restart: dict | None = None) -> dict:
     """PNG loss curve from a losses CSV: train and test, log-scale y (linear when a loss is
     not positive, e.g. a flow NLL); encoder/decoder CSVs get a second panel per loss term.
 
@@ -120,7 +152,9 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     are scaled to the other epochs and the cut is marked: the spike's epochs are shaded, its
     points sit as red triangles on the top edge, and a label gives their count and peak.
     Epochs in which training skipped a step (a non-finite gradient norm, column ``skipped_steps``
-    of a run with ``grad_clip``) get a dotted vertical line.
+    of a run with ``grad_clip``) get a dotted vertical line. ``restart`` (:func:`restart_record`)
+    marks the best-of-k choice: every candidate's test loss at that epoch (the curves are the
+    kept candidate's), kept in view by the y limits.
     Returns, per panel, the axis top and the epochs cut (``{}`` when nothing was cut), and under
     ``"skipped"`` the epochs with a skipped step, when there are any."""
     df = pd.read_csv(losses_csv)
@@ -134,7 +168,15 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     tested = df[np.isfinite(df["test_loss"])]
     ax.plot(tested["epoch"], tested["test_loss"], label="test", lw=1.2, marker="." if len(tested) < 50 else None)
     loss_values = df[["train_loss", "test_loss"]].to_numpy(dtype=float)
-    top = _set_limits(ax, loss_values, healthy)
+    if restart is not None:
+        _mark_restart(ax, restart)
+        scores = np.asarray(restart["test_loss"], dtype=float)
+        scores = scores[np.isfinite(scores)]
+        # the candidates' scores take part in the limits (as extra healthy rows), not in the cut marks
+        top = _set_limits(ax, np.vstack([loss_values, np.c_[scores, scores]]),
+                          np.r_[healthy, np.ones(scores.size, dtype=bool)])
+    else:
+        top = _set_limits(ax, loss_values, healthy)
     if top is not None:
         cuts["loss"] = _mark_cut(ax, epochs, loss_values, top)
     has_skips = df["skipped_steps"] > 0 if "skipped_steps" in df else None

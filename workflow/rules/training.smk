@@ -134,6 +134,7 @@ rule plot_training_losses:
     input:
         code=code_for("cvsim6.loss_plots:plot_training_losses"),
         losses=f"{TRAINING}/{{study}}/{{network}}_losses.csv",
+        model=f"{TRAINED_MODELS}/{{study}}/{{network}}.pt",
     output:
         figure=report(
             f"{TRAINING}/{{study}}/{{network}}_losses.png",

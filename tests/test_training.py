@@ -424,6 +424,74 @@ def test_restarts_continue_the_candidate_with_the_lowest_test_loss(data, emulato
     assert torch.load(tmp_path / "split" / "m.pt", weights_only=True)["info"]["restart"] == info
 
 
+def _candidate_job(data, emulator, d, c, **kw):
+    """Candidate ``c`` as the workflow's job of its own trains it: its checkpoint and losses given."""
+    d.mkdir(exist_ok=True)
+    ckpt = d / f"m.pt.ckpt.candidate{c}"
+    return tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                    model=str(d / "m.pt"), losses=f"{ckpt}.csv", checkpoint=str(ckpt),
+                                    hyper=ENCDEC | _RESTARTS, seed=3, noise_level=0.25, device="cpu",
+                                    progress=False, checkpoint_every=2, candidate=c, **kw)
+
+
+def test_candidates_trained_as_jobs_of_their_own_give_the_same_run_and_are_only_read(data, emulator, tmp_path):
+    """The workflow trains each restart candidate in a job of its own, side by side, and hands the
+    run their checkpoints: the run is bit-identical to one that trains them itself, and leaves
+    its inputs (the candidates' files) untouched."""
+    assert _encdec_run(data, emulator, tmp_path / "r", _RESTARTS)["completed"]
+    jobs = tmp_path / "jobs"
+    for c in (2, 0, 1):  # any order
+        res = _candidate_job(data, emulator, jobs, c)
+        assert res["epochs_done"] == 2 and not (jobs / "m.pt").exists() and not (jobs / "m.pt.ckpt").exists()
+        assert res["score"] == float(pd.read_csv(f"{jobs}/m.pt.ckpt.candidate{c}.csv")["test_loss"].iloc[-1])
+    files = sorted(jobs.iterdir())
+    before = {f: (f.stat().st_mtime_ns, f.read_bytes()) for f in files}
+    again = _candidate_job(data, emulator, jobs, 1)  # a finished candidate is not retrained
+    assert again["epochs_this_run"] == 0 and again["score"] == torch.load(
+        tmp_path / "r" / "m.pt", weights_only=True)["info"]["restart"]["test_loss"][1]
+    assert _encdec_run(data, emulator, jobs, _RESTARTS,
+                       candidates=[str(jobs / f"m.pt.ckpt.candidate{c}") for c in range(3)])["completed"]
+    assert {f: (f.stat().st_mtime_ns, f.read_bytes()) for f in files} == before
+    _assert_same_weights(tmp_path / "r" / "m.pt", jobs / "m.pt")
+    info = [torch.load(d / "m.pt", weights_only=True)["info"]["restart"] for d in (tmp_path / "r", jobs)]
+    assert info[0] == info[1]
+    pd.testing.assert_frame_equal(_drop_timing(pd.read_csv(tmp_path / "r" / "m.csv")),
+                                  _drop_timing(pd.read_csv(jobs / "m.csv")))
+
+
+def test_candidate_options_are_checked(data, emulator, tmp_path):
+    with pytest.raises(ValueError, match="candidate 3 is not one of the 3"):
+        _candidate_job(data, emulator, tmp_path, 3)
+    with pytest.raises(ValueError, match="candidate 0 is not one of the 1"):
+        _encdec_run(data, emulator, tmp_path, {"epochs": 6}, candidate=0, checkpoint=str(tmp_path / "c"))
+    with pytest.raises(ValueError, match="losses at checkpoint"):
+        _encdec_run(data, emulator, tmp_path, _RESTARTS, candidate=0, checkpoint=str(tmp_path / "c"))
+    with pytest.raises(ValueError, match="2 candidate checkpoints given for restarts: 3"):
+        _encdec_run(data, emulator, tmp_path, _RESTARTS, candidates=["a", "b"])
+    assert not list(tmp_path.glob("*.ckpt*")) and not (tmp_path / "m.pt").exists()
+
+
+def test_a_diverged_candidate_loses_and_is_not_replayed(data, emulator, tmp_path, monkeypatch):
+    real_fit, calls = tr._fit, []
+
+    def fit(stage, hyper, seed, *args, **kw):
+        calls.append(seed)
+        if seed == tr.candidate_seed(3, 1):
+            raise FloatingPointError("non-finite loss at epoch 1")
+        return real_fit(stage, hyper, seed, *args, **kw)
+
+    monkeypatch.setattr(tr, "_fit", fit)
+    res = _encdec_run(data, emulator, tmp_path, _RESTARTS, max_epochs_this_run=4)  # candidates 0, 2 to the choice
+    assert not res["completed"] and calls == [tr.candidate_seed(3, c) for c in range(3)] + [3]  # + the run, 0 epochs
+    assert torch.load(tmp_path / "m.pt.ckpt.candidate1", weights_only=True)["diverged"]
+    calls.clear()
+    assert _encdec_run(data, emulator, tmp_path, _RESTARTS)["completed"]
+    assert calls == [3]  # the run goes on from the chosen candidate; candidate 1 is not replayed
+    info = torch.load(tmp_path / "m.pt", weights_only=True)["info"]["restart"]
+    assert info["test_loss"][1] == float("inf") and info["chosen"] in (0, 2)
+    assert info["chosen"] == (0 if info["test_loss"][0] <= info["test_loss"][2] else 2)
+
+
 def test_restarts_that_tie_continue_candidate_0_exactly_as_a_run_without_them(data, emulator, tmp_path,
                                                                                monkeypatch):
     monkeypatch.setattr(tr, "candidate_seed", lambda seed, c: seed)  # three identical candidates

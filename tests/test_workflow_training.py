@@ -16,7 +16,8 @@ def test_training_stage_end_to_end(tmp_path):
                "results/models/ehr/flow_delta2.pt",
                "results/training/ehr/emulator_l2_errors.json",
                "results/training/structural/flow_delta0_marginals.png",
-               "results/training/ehr/encoder_decoder_delta0.5_losses.png"]
+               "results/training/ehr/encoder_decoder_delta0.5_losses.png",
+               "results/training/structural/encoder_decoder_delta0_losses.png"]
     proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml", cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     # models load, with the architecture of the config and the noise level of the file name
@@ -29,6 +30,18 @@ def test_training_stage_end_to_end(tmp_path):
     assert list(losses["epoch"]) == [1, 2]
     assert losses[["train_loss", "test_loss"]].notna().all().all()
     assert (work / "results/training/ehr/encoder_decoder_delta0.5_losses.png").is_file()
+    # the structural encoder/decoder (restarts: 2 in the smoke config): each candidate trained in
+    # a job of its own (log, benchmark), the run chose by their test losses at the choice
+    _, info = networks.load_model(work / "results/models/structural/encoder_decoder_delta0.pt", with_info=True)
+    restart = info["restart"]
+    cands = [pd.read_csv(work / f"results/models/structural/encoder_decoder_delta0.pt.ckpt.candidate{c}.csv")
+             for c in range(2)]
+    assert restart["test_loss"] == [float(df.loc[df["epoch"] == restart["epochs"], "test_loss"].iloc[0])
+                                    for df in cands]
+    assert restart["chosen"] == min(range(2), key=lambda c: (restart["test_loss"][c], c))
+    for c in range(2):
+        assert "done" in (work / f"logs/train_encoder_decoder_candidate/structural_delta0_{c}.log").read_text()
+        assert (work / f"benchmarks/train_encoder_decoder_candidate/structural_delta0_{c}.tsv").is_file()
     # the generated appendix tables state what was run
     arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
     assert (arch["Parameters"] == arch["Parameters (paper)"]).all()

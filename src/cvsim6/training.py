@@ -580,54 +580,104 @@ def _candidate_path(ckpt: Path, candidate: int) -> Path:
     return ckpt.with_name(f"{ckpt.name}.candidate{candidate}")
 
 
+def _candidate_score(path: Path, fingerprint: str, restart_epochs: int) -> float | None:
+    """Test loss of a finished restart candidate (its checkpoint at ``path``): the one at epoch
+    ``restart_epochs``, ``inf`` for a candidate that diverged; ``None`` when it has still to (finish
+    its) training. Reads only: a candidate trained by a job of its own is an input of the run."""
+    ck = _read_checkpoint(path)
+    if ck is None or ck.get("fingerprint") != fingerprint:
+        return None
+    if ck.get("diverged"):
+        return math.inf
+    if int(ck["epoch"]) < restart_epochs:
+        return None
+    return float(next(row["test_loss"] for row in ck["history"] if int(row["epoch"]) == restart_epochs))
+
+
+def _run_candidate(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerprint: str, c: int,
+                   path: Path, model_path: str, info: dict, max_epochs_this_run: int | None, checkpoint_every: int,
+                   progress: bool, max_cpu_seconds: float | None) -> dict:
+    """Train restart candidate ``c`` to epoch ``restart_epochs`` (or resume it), checkpoint at
+    ``path``, losses at ``path + ".csv"``. Returns :func:`_fit`'s result with ``score`` (its test
+    loss at the choice; ``inf`` when it diverged, recorded in its checkpoint so that no rerun
+    replays it; ``None`` when stopped early by the budget)."""
+    r = int(hyper["restart_epochs"])
+    fp_c = f"{fingerprint}:candidate{c}"
+    done = _candidate_score(path, fp_c, r)
+    if done is not None:
+        return {"completed": False, "epochs_done": r, "epochs_this_run": 0, "cpu_seconds": 0.0, "score": done}
+    cseed = candidate_seed(seed, c)
+    try:
+        res = _fit(make_stage(cseed), hyper, cseed, fp_c, model_path, str(path) + ".csv", str(path), info,
+                   max_epochs_this_run, checkpoint_every, progress, max_cpu_seconds, until_epoch=r)
+    except FloatingPointError as exc:  # a diverged candidate loses
+        log.warning("%s: restart candidate %d diverged: %s", info.get("stage"), c, exc)
+        _save_checkpoint(path, {"fingerprint": fp_c, "diverged": True, "error": str(exc)})
+        return {"completed": False, "epochs_done": 0, "epochs_this_run": 0, "cpu_seconds": 0.0, "score": math.inf}
+    score = float(res["test_loss"]) if res["epochs_done"] >= r else None  # evaluated at r (a multiple of eval_every)
+    if score is not None:
+        log.info("%s: restart candidate %d (seed %d): test loss %.6g at epoch %d", info.get("stage"), c, cseed,
+                 score, r)
+    return {**res, "score": score}
+
+
 def _train(make_stage: Callable[[int], _Stage], hyper: dict, seed: int, fingerprint: str, model_path: str,
            losses: str, checkpoint: str | None, info: dict, max_epochs_this_run: int | None,
-           checkpoint_every: int, progress: bool, max_cpu_seconds: float | None) -> dict:
+           checkpoint_every: int, progress: bool, max_cpu_seconds: float | None,
+           candidate: int | None = None, candidates: list[str] | None = None) -> dict:
     """:func:`_fit` with best-of-``restarts`` initializations.
 
     ``make_stage(init_seed)`` builds the stage with a model seeded by ``torch.manual_seed(init_seed)``
     (everything else, test noise included, from the master ``seed``). With ``restarts`` k > 1, k
     candidates (seeds :func:`candidate_seed`) each train the first ``restart_epochs`` epochs of the
     full schedule, exactly as they would alone, with their own checkpoint and losses CSV
-    (``<checkpoint>.candidate<c>`` and ``.csv``); the one with the lowest test loss at that epoch
-    (the criterion of ``keep_best``; ties to the lower index) becomes the run's checkpoint and
-    trains to the end. Every phase resumes from its checkpoint; ``max_epochs_this_run`` and
-    ``max_cpu_seconds`` count across the candidates. The model's ``info`` gets ``restart``: the
-    candidates' seeds and test losses and the chosen index.
+    (``candidates[c]`` and ``candidates[c] + ".csv"``; by default ``<checkpoint>.candidate<c>``);
+    the one with the lowest test loss at that epoch (the criterion of ``keep_best``; ties to the
+    lower index; a diverged one loses) becomes the run's checkpoint and trains to the end. Every
+    phase resumes from its checkpoint; ``max_epochs_this_run`` and ``max_cpu_seconds`` count
+    across the candidates. The model's ``info`` gets ``restart``: the candidates' seeds and test
+    losses and the chosen index.
+
+    ``candidate`` = c trains only candidate c, to the choice, at ``checkpoint`` (required) with its
+    losses at ``losses`` (the workflow runs each candidate as a job of its own, side by side, and
+    gives the run their checkpoints as ``candidates``: finished ones are read, not retrained).
     """
     k = int(hyper["restarts"])
+    if candidate is not None:
+        if k == 1 or not (int(candidate) == candidate and 0 <= candidate < k):
+            raise ValueError(f"{info.get('stage')}: restart candidate {candidate!r} is not one of the {k} "
+                             f"initializations (restarts: {k})")
+        if not checkpoint or Path(losses) != Path(str(checkpoint) + ".csv"):
+            raise ValueError(f"restart candidate {candidate}: give its checkpoint, with losses at checkpoint + '.csv' "
+                             f"(got checkpoint={checkpoint!r}, losses={losses!r})")
+        return _run_candidate(make_stage, hyper, seed, fingerprint, int(candidate), Path(checkpoint), model_path,
+                              info, max_epochs_this_run, checkpoint_every, progress, max_cpu_seconds)
     if k == 1:
         return _fit(make_stage(seed), hyper, seed, fingerprint, model_path, losses, checkpoint, info,
                     max_epochs_this_run, checkpoint_every, progress, max_cpu_seconds)
     ckpt = Path(checkpoint) if checkpoint else Path(str(model_path) + ".ckpt")
+    paths = [Path(x) for x in candidates] if candidates else [_candidate_path(ckpt, c) for c in range(k)]
+    if len(paths) != k:
+        raise ValueError(f"{info.get('stage')}: {len(paths)} candidate checkpoints given for restarts: {k}")
     r = int(hyper["restart_epochs"])
     budget, cpu_left = max_epochs_this_run, max_cpu_seconds
     if (_read_checkpoint(ckpt) or {}).get("fingerprint") != fingerprint:
         scores: list[float] = []
-        for c in range(k):
-            cseed, path = candidate_seed(seed, c), _candidate_path(ckpt, c)
-            try:
-                res = _fit(make_stage(cseed), hyper, cseed, f"{fingerprint}:candidate{c}", model_path,
-                           str(path) + ".csv", str(path), info, budget, checkpoint_every, progress, cpu_left,
-                           until_epoch=r)
-            except FloatingPointError as exc:  # a diverged candidate loses (a rerun replays it)
-                log.warning("%s: restart candidate %d diverged: %s", info.get("stage"), c, exc)
-                scores.append(math.inf)
-                continue
+        for c, path in enumerate(paths):
+            res = _run_candidate(make_stage, hyper, seed, fingerprint, c, path, model_path, info, budget,
+                                 checkpoint_every, progress, cpu_left)
             if budget is not None:
                 budget -= res["epochs_this_run"]
             if cpu_left is not None:
                 cpu_left -= res["cpu_seconds"]
-            if res["epochs_done"] < r:  # stopped by the budget: resume later
+            if res["score"] is None:  # stopped by the budget: resume later
                 return {**res, "completed": False}
-            scores.append(float(res["test_loss"]))  # evaluated at epoch r (a multiple of eval_every)
-            log.info("%s: restart candidate %d (seed %d): test loss %.6g at epoch %d", info.get("stage"), c, cseed,
-                     scores[-1], r)
+            scores.append(res["score"])
         if not any(math.isfinite(x) for x in scores):
             raise FloatingPointError(f"{info.get('stage')}: all {k} restart candidates diverged")
         chosen = int(np.argmin(scores))
         log.info("%s: candidate %d chosen of %d", info.get("stage"), chosen, k)
-        ck = torch.load(_candidate_path(ckpt, chosen), map_location="cpu", weights_only=True)
+        ck = torch.load(paths[chosen], map_location="cpu", weights_only=True)
         ck["fingerprint"] = fingerprint
         ck["extra"] = {"restart": {"epochs": r, "chosen": chosen,
                                    "seeds": [candidate_seed(seed, c) for c in range(k)], "test_loss": scores}}
@@ -677,12 +727,15 @@ def _fingerprint(**items) -> str:
 def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
                    device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                    max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
-                   progress: bool = True, max_cpu_seconds: float | None = None) -> dict:
+                   progress: bool = True, max_cpu_seconds: float | None = None,
+                   candidate: int | None = None, candidates: list[str] | None = None) -> dict:
     """Train ``NN_e`` (parameters -> outputs) on clean data; write ``model`` (.pt) and ``losses``
     (CSV, one row per epoch; :func:`cvsim6.loss_plots.plot_training_losses` draws it).
     ``max_epochs_this_run`` stops early after that many epochs of this call (checkpoint only,
-    no model written). Returns a summary dict (``completed``, ``epochs_done``, ``train_loss``,
-    ``test_loss``)."""
+    no model written). With ``restarts``: ``candidate`` trains that initialization only, to the
+    choice, at ``checkpoint`` (``losses`` = checkpoint + ".csv"; no model written), and
+    ``candidates`` names the candidates' checkpoints (see :func:`_train`). Returns a summary dict
+    (``completed``, ``epochs_done``, ``train_loss``, ``test_loss``; a candidate's ``score``)."""
     h, dev, dtype = _setup("emulator", hyper, device, threads)
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
@@ -701,13 +754,14 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
     fp = _fingerprint(stage="emulator", hyper=h, seed=seed, data=_digest(v_tr, y_tr, v_te, y_te), fmt=nw.FORMAT)
     info = {"stage": "emulator", "hyper": h, "seed": seed, "noise_level": 0.0, "n_train": len(v_tr), "n_test": len(v_te)}
     return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                  progress, max_cpu_seconds)
+                  progress, max_cpu_seconds, candidate, candidates)
 
 
 def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
                noise_level: float = 0.0, device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                max_epochs_this_run: int | None = None, checkpoint_every: int = 50, progress: bool = True,
-               max_cpu_seconds: float | None = None) -> dict:
+               max_cpu_seconds: float | None = None, candidate: int | None = None,
+               candidates: list[str] | None = None) -> dict:
     """Train the Real-NVP ``NN_f`` on the outputs with training noise of level ``noise_level``
     (delta, multiplier of the registry noise std). Outputs and return value as
     :func:`train_emulator`."""
@@ -732,14 +786,15 @@ def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed
     info = {"stage": "flow", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(y_tr), "n_test": len(y_te), "label": f"delta={noise_level:g}"}
     return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                  progress, max_cpu_seconds)
+                  progress, max_cpu_seconds, candidate, candidates)
 
 
 def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str,
                           hyper: dict, seed: int, noise_level: float = 0.0, device: str = "auto",
                           threads: int = 1, checkpoint: str | None = None,
                           max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
-                          progress: bool = True, max_cpu_seconds: float | None = None) -> dict:
+                          progress: bool = True, max_cpu_seconds: float | None = None,
+                          candidate: int | None = None, candidates: list[str] | None = None) -> dict:
     """Train ``NN_v`` + ``NN_d`` with the re-evaluation term through the frozen emulator file
     ``emulator``; training noise of level ``noise_level`` on y' everywhere. Outputs and return
     value as :func:`train_emulator`."""
@@ -772,4 +827,4 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
     info = {"stage": "encoder_decoder", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(v_tr), "n_test": len(v_te), "label": f"delta={noise_level:g}"}
     return _train(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,
-                  progress, max_cpu_seconds)
+                  progress, max_cpu_seconds, candidate, candidates)

@@ -11,6 +11,7 @@ NET_TRAINING = f"{NET}/training"
 
 wildcard_constraints:
     delta=r"[0-9.]+",
+    candidate=r"[0-9]+",
     network=r"emulator|(flow|encoder_decoder)_delta[0-9.]+",
 
 
@@ -99,12 +100,58 @@ rule train_flow:
         "../scripts/call.py"
 
 
+def encoder_decoder_candidates(wildcards):
+    """The restart candidates' checkpoints of an encoder/decoder trained with ``restarts`` > 1
+    (one job each, side by side), none without."""
+    k = config["training"]["studies"][wildcards.study]["encoder_decoder"].get(
+        "restarts", 1
+    )
+    model = (
+        f"{TRAINED_MODELS}/{wildcards.study}/encoder_decoder_delta{wildcards.delta}.pt"
+    )
+    return [f"{model}.ckpt.candidate{c}" for c in range(k)] if k > 1 else []
+
+
+rule train_encoder_decoder_candidate:
+    input:
+        code=code_for("cvsim6.training:train_encoder_decoder"),
+        train=f"{DATA}/{{study}}/train.parquet",
+        test=f"{DATA}/{{study}}/test.parquet",
+        emulator=rules.train_emulator.output.model,
+    output:
+        checkpoint=f"{TRAINED_MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt.ckpt.candidate{{candidate}}",
+        losses=f"{TRAINED_MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt.ckpt.candidate{{candidate}}.csv",
+    log:
+        f"{LOGS}/train_encoder_decoder_candidate/{{study}}_delta{{delta}}_{{candidate}}.log",
+    benchmark:
+        f"{BENCHMARKS}/train_encoder_decoder_candidate/{{study}}_delta{{delta}}_{{candidate}}.tsv"
+    priority: study_priority(3, 1)
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: config["training"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=120,
+    params:
+        function="cvsim6.training:train_encoder_decoder",
+        candidate=lambda w: int(w.candidate),
+        model=lambda w: f"{TRAINED_MODELS}/{w.study}/encoder_decoder_delta{w.delta}.pt",
+        hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
+        noise_level=lambda w: float(w.delta),
+        seed=config["seed"],
+        device=config["training"]["device"],
+        checkpoint_every=config["training"]["checkpoint_every"],
+    script:
+        "../scripts/call.py"
+
+
 rule train_encoder_decoder:
     input:
         code=code_for("cvsim6.training:train_encoder_decoder"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
         emulator=rules.train_emulator.output.model,
+        candidates=encoder_decoder_candidates,
     output:
         model=f"{TRAINED_MODELS}/{{study}}/encoder_decoder_delta{{delta}}.pt",
         losses=f"{TRAINING}/{{study}}/encoder_decoder_delta{{delta}}_losses.csv",

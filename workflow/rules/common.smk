@@ -133,6 +133,18 @@ def calibration_figure_delta():
     return noise_tag(config["ehr_study"]["figure_noise_level"])
 
 
+def encoder_decoder_candidates(wildcards):
+    """The restart candidates' checkpoints of an encoder/decoder trained with ``restarts`` > 1
+    (one job each, side by side), none without."""
+    k = config["training"]["studies"][wildcards.study]["encoder_decoder"].get(
+        "restarts", 1
+    )
+    model = (
+        f"{RESULTS}/models/{wildcards.study}/encoder_decoder_delta{wildcards.delta}.pt"
+    )
+    return [f"{model}.ckpt.candidate{c}" for c in range(k)] if k > 1 else []
+
+
 def invaert_training_losses(wildcards=None):
     """The encoder/decoder loss CSVs (their epoch seconds), when the networks are trained here."""
     if NETWORK_SOURCE != "trained":

@@ -100,18 +100,6 @@ rule train_flow:
         "../scripts/call.py"
 
 
-def encoder_decoder_candidates(wildcards):
-    """The restart candidates' checkpoints of an encoder/decoder trained with ``restarts`` > 1
-    (one job each, side by side), none without."""
-    k = config["training"]["studies"][wildcards.study]["encoder_decoder"].get(
-        "restarts", 1
-    )
-    model = (
-        f"{TRAINED_MODELS}/{wildcards.study}/encoder_decoder_delta{wildcards.delta}.pt"
-    )
-    return [f"{model}.ckpt.candidate{c}" for c in range(k)] if k > 1 else []
-
-
 rule train_encoder_decoder_candidate:
     input:
         code=code_for("cvsim6.training:train_encoder_decoder"),

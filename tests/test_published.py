@@ -155,13 +155,15 @@ def test_noise_levels_without_published_networks_are_refused():
 @pytest.mark.slow
 @pytest.mark.skipif(not EHR_CSV.is_file(), reason="local copy of the EHR data not present")
 def test_published_networks_reproduce_table_5_at_delta_half(converted):
-    """Our EHR inversion (Algorithm 1 with 200,000 flow samples, 100 latent draws, two
+    """Our EHR inversion (Algorithm 1 with 100,000 flow samples, 100 latent draws, two
     predictor-corrector rounds) with the paper's networks gives e_k within 10% of the
-    paper's table 5 at delta = 0.5 for every output observed in more than 10 patients."""
+    paper's table 5 at delta = 0.5 for every output observed in more than 10 patients.
+    (Ratios measured at 100,000 samples: 0.971-1.059 with seed 2024, 0.975-1.065 with seed 7;
+    at 50,000 up to 1.104, so not fewer.)"""
     obs = ehr.select_patients(ehr.ehr_outputs(EHR_CSV))
     files = converted["ehr"]
     pred = ehr_study.invert_observations(obs, load_model(files["flows"][0]), load_model(files["encoder_decoders"][0]),
-                                         load_model(files["emulator"]), n_latent=100, n_flow_samples=200_000,
+                                         load_model(files["emulator"]), n_latent=100, n_flow_samples=100_000,
                                          seed=2024, corrector_steps=2)
     e = ehr_study.error_per_output(obs, pred)
     checked = [n for n in registry.OUTPUT_NAMES if e.loc[n, "count"] > 10]

@@ -1,4 +1,5 @@
-"""The EHR error criterion e_k and the EHR stage end to end (smoke config)."""
+"""The EHR error criterion e_k, inversion of bad or out-of-distribution input, unit checks.
+The EHR stage end to end is checked in test_workflow_smoke.py."""
 from pathlib import Path
 
 import numpy as np
@@ -6,7 +7,6 @@ import pandas as pd
 import pytest
 
 from cvsim6 import ehr_study, registry
-from test_workflow import copy_workflow, snakemake
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
 
@@ -25,88 +25,6 @@ def test_error_per_output_is_the_papers_criterion():
     assert e.loc["Hr", "e_k"] == pytest.approx(1.25) and e.loc["Hr", "count"] == 2
     assert e.loc["CO", "e_k"] == pytest.approx(1.0) and e.loc["CO", "count"] == 1
     assert np.isnan(e.loc["V_l_sys", "e_k"]) and e.loc["V_l_sys", "count"] == 0
-
-
-@pytest.fixture(scope="module")
-def ehr_smoke_run(tmp_path_factory):
-    """The EHR stage and the calibration stage, run once by Snakemake on the smoke config."""
-    if not REAL.is_file():
-        pytest.skip("local copy of the EHR data not present")
-    work = copy_workflow(tmp_path_factory.mktemp("ehr"))
-    targets = ["results/tables/ehr_error_per_output.md", "results/ehr/patient_predictions_delta0.5.png",
-               "results/tables/ehr_ood_delta0.5.md", "calibration"]
-    proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml",
-                     "--config", f"ehr_data={{'path': '{REAL}'}}", cwd=work)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return work
-
-
-@pytest.mark.slow
-def test_ehr_stage_end_to_end(ehr_smoke_run):
-    work = ehr_smoke_run
-    table = pd.read_csv(work / "results/tables/ehr_error_per_output.csv").set_index("Output")
-    assert list(table["Counts"]) == [f"{c}/46" for c in (46, 46, 46, 44, 11, 46, 46, 44, 46, 3, 0, 3, 45, 46, 46, 46)]
-    assert {"delta=0.5", "delta=2", "paper delta=0.5"} <= set(table.columns)
-    assert np.isnan(table.loc["V_l_sys", "delta=0.5"])
-    pred = pd.read_parquet(work / "results/ehr/predictions_delta0.5.parquet")
-    assert pred["id"].nunique() == 46 and len(pred) == 46 * 100
-    # observed entries of each patient are kept in the completion Algorithm 1 returns
-    obs = pd.read_csv(work / "results/ehr/patients.csv", index_col="patient")
-    first = pred.groupby("id").first()
-    for n in registry.OUTPUT_NAMES:
-        seen = obs[n].notna()
-        np.testing.assert_allclose(first.loc[obs.index[seen], "completed_" + n], obs.loc[seen, n])
-    ood = pd.read_csv(work / "results/tables/ehr_ood_delta0.5.csv")
-    assert len(ood) == 46 and ood["ood_percentile"].between(0, 100).all()
-
-
-
-@pytest.mark.slow
-def test_calibration_stage_end_to_end(ehr_smoke_run):
-    """Calibration tables of both methods, and the EHR patients' e_k three ways: the emulated
-    way equals table 5, the simulated ways are the simulator's outputs of the stored sets."""
-    from cvsim6 import ehr_methods, solver
-
-    work = ehr_smoke_run
-    cal = pd.read_csv(work / "results/tables/calibration_summary.csv")
-    assert len(cal) == 2 * 2 * 23  # methods x noise levels x parameters
-    assert set(cal["method"]) == {"inVAErt", "NPE"} and set(cal["noise_level"]) == {0.5, 2.0}
-    assert cal["sbc_pvalue"].between(0, 1).all() and (cal["coverage_error"] >= 0).all()
-    assert (cal["n_cases"] == 20).all() and (cal["n_samples"] == 20).all()
-    for name in ("coverage.png", "rank_ecdf_delta0.5.png", "recovery_delta0.5.png"):
-        assert (work / "results/calibration" / name).is_file()
-    samples = np.load(work / "results/calibration/samples_delta2.npz")
-    assert samples["inVAErt"].shape == samples["NPE"].shape == (20, 20, 23)
-    # NPE samples stay in the prior box of the EHR study
-    from cvsim6 import priors
-
-    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["ehr"])
-    assert (samples["NPE"] >= lo).all() and (samples["NPE"] <= hi).all()
-
-    methods = pd.read_csv(work / "results/tables/ehr_error_methods.csv").set_index("Output")
-    table5 = pd.read_csv(work / "results/tables/ehr_error_per_output.csv").set_index("Output")
-    for d in ("0.5", "2"):
-        np.testing.assert_allclose(methods[f"inVAErt via emulator, delta={d}"], table5[f"delta={d}"])
-        for way in ehr_methods.WAYS[1:]:
-            ek = methods[f"{way}, delta={d}"]
-            seen = table5["Counts"].str.split("/").str[0].astype(int) > 0
-            assert ek[seen].notna().sum() >= 1 and ek[~seen].isna().all()
-    assert "paper delta=0.5" in methods and "Lowest at delta=0.5" in methods
-    # the simulated outputs are the simulator's, of the parameter sets stored beside them
-    for f in ("ehr/predictions_delta0.5_simulated.parquet", "ehr/npe_predictions_delta0.5.parquet"):
-        pred = pd.read_parquet(work / "results" / f)
-        rows = pred[pred["sim_status"] == 0].head(5)
-        y, st = solver.simulate_batch(rows[list(registry.PARAMETER_NAMES)].to_numpy(), steps_per_cycle=200)
-        np.testing.assert_allclose(rows[[ehr_study.PRED + n for n in registry.OUTPUT_NAMES]].to_numpy(), y)
-    npe_pred = pd.read_parquet(work / "results/ehr/npe_predictions_delta0.5.parquet")
-    inv = pd.read_parquet(work / "results/ehr/predictions_delta0.5.parquet")
-    ok = inv[inv["status"] == "ok"]
-    assert npe_pred.loc[npe_pred["status"] == "ok", "id"].nunique() == ok["id"].nunique()
-    # NPE inverts the same completed outputs as inVAErt
-    a = npe_pred[npe_pred["status"] == "ok"].groupby("id").first()
-    b = ok.groupby("id").first()
-    cols = ["completed_" + n for n in registry.OUTPUT_NAMES]
-    np.testing.assert_array_equal(a.loc[b.index, cols].to_numpy(), b[cols].to_numpy())
 
 
 # ----------------------------------------------------------------------------- bad input, OOD

@@ -1,13 +1,12 @@
-"""Error statistics on known numbers, and the structural study end to end (smoke config)."""
+"""Error statistics on known numbers, out-of-domain decoded sets, trajectory panels. The structural
+study end to end is checked in test_workflow_smoke.py."""
 import json
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import datasets, evaluation, paper_values, registry, structural_study
-from cvsim6.model import outside_domain
-from test_workflow import copy_workflow, snakemake
+from cvsim6 import evaluation, registry, structural_study
 
 
 def test_error_statistics_known_values():
@@ -81,38 +80,3 @@ def test_trajectory_panels_draw_every_set_and_target():
     assert curves == [2, 2, 2, 2] and dashed == [1, 2, 2, 2]
     assert [ax.get_ylabel() for ax in axes.flat] == ["P_a (mmHg)", "P_r (mmHg)", "P_pa (mmHg)", "V_l (mL)"]
     plt.close(fig)
-
-
-@pytest.mark.slow
-def test_structural_stage_end_to_end(tmp_path):
-    work = copy_workflow(tmp_path)
-    targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",
-               "results/structural/manifold_parallel_coordinates.png", "results/structural/manifold_svd.png",
-               "results/structural/missing_data_trajectories.png", "results/structural/jacobian_spectra.png"]
-    proc = snakemake("--cores", "2", *targets, "--configfile", "config/smoke.yaml", cwd=work)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    t = pd.read_csv(work / "results/tables/structural_inversion_errors.csv")
-    assert len(t) == 16 and (t["Max (ours)"] >= t["Mean (ours)"]).all() and "Mean (paper)" in t
-    obs = pd.read_csv(work / "results/tables/structural_observation.csv")
-    np.testing.assert_allclose(obs["y*"], paper_values.Y_STAR)
-    svd = json.loads((work / "results/structural/manifold_svd.json").read_text())
-    sv = pd.read_csv(work / "results/structural/manifold_svd.csv")["singular_value"]
-    # standardized columns: the squared singular values add up to n_samples per varying column
-    v = datasets.read_dataset(work / "results/structural/manifold_samples.parquet")[list(registry.PARAMETER_NAMES)]
-    v = v.to_numpy()[~outside_domain(v.to_numpy())]
-    assert len(v) == svd["n_samples"]
-    assert (sv**2).sum() == pytest.approx(len(v) * (v.std(axis=0) > 0).sum(), rel=1e-6)
-    assert svd["n_samples"] + svd["outside_domain"] == 200
-    miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
-    assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()
-    for name in registry.OUTPUT_NAMES:  # observed entries of y* are kept in every completion
-        if name not in paper_values.MISSING_OUTPUTS:
-            assert (miss[name] == obs.set_index("Output").loc[name, "y*"]).all()
-    jac = json.loads((work / "results/tables/structural_local_identifiability.json").read_text())
-    # V0_a, V0_v, V0_r, V0_pa, V0_pv set the outputs only through their sum: 4 exact null
-    # directions at every point, in which V0_a holds at least 1 - w_a^2 / sum w^2 = 0.93
-    shares = pd.read_csv(work / "results/tables/structural_local_identifiability.csv").set_index("Parameter")
-    assert shares.loc["V0_a", "null-space share (mean)"] * jac["local_manifold_dimension"] > 0.9
-    assert shares.loc["Hr", "null-space share (max)"] < 1e-6  # observed directly
-    for fig in targets[1:]:
-        assert (work / fig).with_suffix(".pdf").is_file()

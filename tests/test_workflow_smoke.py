@@ -1,0 +1,282 @@
+"""The smoke workflow end to end, run once for all the stages' checks: Snakemake, in a copy of
+the workflow, runs target ``all`` with the paper's published networks (no training), then
+``all`` and ``calibration`` with this workflow's own networks in the same results/ tree. The
+checks of each stage (training, structural study, EHR study, calibration) and of the two network
+sources side by side in one scorecard read that one tree: one run of the smoke workflow instead
+of one per stage (the test suite's time on 2 cores)."""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from cvsim6 import (datasets, ehr_methods, ehr_study, networks, paper_values, priors, registry,
+                    solver)
+from cvsim6.model import outside_domain
+from test_workflow import copy_workflow, snakemake
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+REAL = SHARED / "EHR_dataset.csv"
+PUBLISHED = SHARED / "paper_networks"
+SMOKE = ["--configfile", "config/smoke.yaml", "local.yaml"]
+#: Without the local EHR data (which target ``all`` needs) the training and structural stages run alone.
+STAGE_TARGETS = ["results/tables/structural_emulator_validation.md", "results/tables/ehr_architectures.md",
+                 "results/tables/structural_schedules.md", "results/models/ehr/encoder_decoder_delta0.5.pt",
+                 "results/models/ehr/flow_delta2.pt", "results/training/ehr/emulator_l2_errors.json",
+                 "results/training/structural/flow_delta0_marginals.png",
+                 "results/training/ehr/encoder_decoder_delta0.5_losses.png",
+                 "results/training/structural/encoder_decoder_delta0_losses.png",
+                 "results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",
+                 "results/structural/manifold_parallel_coordinates.png", "results/structural/manifold_svd.png",
+                 "results/structural/missing_data_trajectories.png", "results/structural/jacobian_spectra.png"]
+
+pytestmark = pytest.mark.slow
+needs_ehr_data = pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
+needs_published = pytest.mark.skipif(not (PUBLISHED.is_dir() and REAL.is_file()),
+                                     reason="local copies of the published networks and the EHR data not present")
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    """A copy of the workflow, with the local copies of the data in ``local.yaml``."""
+    work = copy_workflow(tmp_path_factory.mktemp("smoke"))
+    local = {}
+    if REAL.is_file():
+        local["ehr_data"] = {"path": str(REAL)}
+    if PUBLISHED.is_dir():
+        local["networks"] = {"published": {"path": str(PUBLISHED)}}
+    (work / "local.yaml").write_text(yaml.safe_dump(local))
+    return work
+
+
+@pytest.fixture(scope="module")
+def published_run(work) -> dict:
+    """Target ``all`` with the published networks; what the tree held right after it."""
+    if not (PUBLISHED.is_dir() and REAL.is_file()):
+        pytest.skip("local copies of the published networks and the EHR data not present")
+    proc = snakemake("--cores", "2", "all", *SMOKE, "config/published.yaml", cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    pub = work / "results" / "published"
+    return {"trained_models": (work / "results/models").exists(),
+            "train_logs": sorted(p.name for p in (work / "logs").glob("train_*")),
+            "card": pd.read_csv(work / "results/report/reproduction.csv").set_index("Headline"),
+            "table5_digest": digest(pub / "tables/ehr_error_per_output.csv")}
+
+
+@pytest.fixture(scope="module")
+def trained_run(work, request) -> Path:
+    """This workflow's own networks, after the published run when there is one (one tree)."""
+    if PUBLISHED.is_dir() and REAL.is_file():
+        request.getfixturevalue("published_run")
+    targets = ["all", "calibration"] if REAL.is_file() else STAGE_TARGETS
+    proc = snakemake("--cores", "2", *targets, *SMOKE, cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work
+
+
+@needs_published
+def test_published_networks_run_without_training(work, published_run):
+    pub = work / "results" / "published"
+    # the converted networks: the paper's architecture, float64, with their origin recorded
+    flow, info = networks.load_model(pub / "models/ehr/flow_delta0.5.pt", with_info=True)
+    assert info["source"] == "published" and info["noise_level"] == 0.5
+    assert networks.count_parameters(flow) == paper_values.PARAMETER_COUNTS["ehr"]["NN_f"]
+    assert not published_run["trained_models"]  # nothing was trained
+    assert not published_run["train_logs"]
+    for rel in ("tables/ehr_error_per_output.md", "tables/structural_inversion_errors.md",
+                "structural/manifold_svd.png", "ehr/patient_predictions_delta0.5.png",
+                "training/ehr/emulator_l2_errors.png", "tables/structural_emulator_validation.md"):
+        assert (pub / rel).is_file(), rel
+    card = published_run["card"]
+    assert "published / paper" in card.columns and "trained" not in card.columns
+    lam = card[card.index.str.startswith("Stiffness")]
+    assert len(lam) == 8
+    # the published emulator on our (smoke) validation sets: the paper's appendix C accuracy
+    emulator_row = card.loc[card.index.str.startswith("Structural emulator, mean")].iloc[0]
+    assert 0.5 < emulator_row["published / paper"] < 2.0
+
+
+@needs_published
+def test_published_and_trained_results_sit_side_by_side(published_run, trained_run):
+    work = trained_run
+    assert (work / "results/models/ehr/flow_delta0.5.pt").is_file()
+    assert digest(work / "results/published/tables/ehr_error_per_output.csv") == published_run["table5_digest"]
+    card = pd.read_csv(work / "results/report/reproduction.csv").set_index("Headline")
+    assert {"trained", "trained / paper", "published", "published / paper"} <= set(card.columns)
+    # the stiffness rows do not depend on the networks: one value for both sources
+    lam = card[card.index.str.startswith("Stiffness")]
+    pd.testing.assert_series_equal(lam["trained"], lam["published"], check_names=False)
+    md = (work / "results/report/reproduction.md").read_text()
+    assert "**trained**" in md and "**published**" in md
+
+
+def test_training_stage_end_to_end(trained_run):
+    work = trained_run
+    targets = ["results/tables/structural_emulator_validation.md",
+               "results/tables/ehr_architectures.md",
+               "results/tables/structural_schedules.md",
+               "results/models/ehr/encoder_decoder_delta0.5.pt",
+               "results/models/ehr/flow_delta2.pt",
+               "results/training/ehr/emulator_l2_errors.json",
+               "results/training/structural/flow_delta0_marginals.png",
+               "results/training/ehr/encoder_decoder_delta0.5_losses.png",
+               "results/training/structural/encoder_decoder_delta0_losses.png"]
+    # models load, with the architecture of the config and the noise level of the file name
+    ed, info = networks.load_model(work / "results/models/ehr/encoder_decoder_delta0.5.pt", with_info=True)
+    assert info["noise_level"] == 0.5 and info["stage"] == "encoder_decoder"
+    flow, info = networks.load_model(work / "results/models/ehr/flow_delta2.pt", with_info=True)
+    assert info["noise_level"] == 2.0 and networks.count_parameters(flow) == 20280
+    # per-epoch losses of every stage, as many rows as configured epochs
+    losses = pd.read_csv(work / "results/training/ehr/encoder_decoder_delta0.5_losses.csv")
+    assert list(losses["epoch"]) == [1, 2]
+    assert losses[["train_loss", "test_loss"]].notna().all().all()
+    assert (work / "results/training/ehr/encoder_decoder_delta0.5_losses.png").is_file()
+    # the structural encoder/decoder (restarts: 2 in the smoke config): each candidate trained in
+    # a job of its own (log, benchmark), the run chose by their test losses at the choice
+    _, info = networks.load_model(work / "results/models/structural/encoder_decoder_delta0.pt", with_info=True)
+    restart = info["restart"]
+    cands = [pd.read_csv(work / f"results/models/structural/encoder_decoder_delta0.pt.ckpt.candidate{c}.csv")
+             for c in range(2)]
+    assert restart["test_loss"] == [float(df.loc[df["epoch"] == restart["epochs"], "test_loss"].iloc[0])
+                                    for df in cands]
+    assert restart["chosen"] == min(range(2), key=lambda c: (restart["test_loss"][c], c))
+    for c in range(2):
+        assert "done" in (work / f"logs/train_encoder_decoder_candidate/structural_delta0_{c}.log").read_text()
+        assert (work / f"benchmarks/train_encoder_decoder_candidate/structural_delta0_{c}.tsv").is_file()
+    # the generated appendix tables state what was run
+    arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
+    assert (arch["Parameters"] == arch["Parameters (paper)"]).all()
+    l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
+    assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"]
+    assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()
+    # the smoke config floors the structural emulator's output variances (not the EHR one's): the
+    # losses then carry the plain MSE beside the weighted loss, and the schedule table says so
+    emu = pd.read_csv(work / "results/training/structural/emulator_losses.csv")
+    assert {"train_mse", "test_mse"} <= set(emu.columns) and emu["train_mse"].notna().all()
+    assert "train_mse" not in pd.read_csv(work / "results/training/ehr/emulator_losses.csv").columns
+    sched = pd.read_csv(work / "results/tables/structural_schedules.csv").set_index("Module")
+    assert "output variances floored at 0.01" in sched.loc["NN_e", "Schedule"]
+    assert "floored" not in sched.loc["NN_f", "Schedule"]
+    assert "KL weight ramped up over the first 1 epoch" in sched.loc["NN_v + NN_d", "Schedule"]
+    val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
+    assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val
+    # the loss figures are drawn by a rule of their own: a change of the plotting code redraws
+    # them and retrains nothing
+    code = work / "src/cvsim6/loss_plots.py"
+    text, stat = code.read_text(), code.stat()
+    try:
+        with open(code, "a") as fh:
+            fh.write("\n# changed\n")
+        proc = snakemake("-n", *targets, *SMOKE, cwd=work)
+    finally:  # the shared tree stays up to date for the other tests
+        code.write_text(text)
+        os.utime(code, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and "Updated input files: src/cvsim6/loss_plots.py" in out
+    assert "plot_training_losses" in out and "train_encoder_decoder" not in out and "train_emulator" not in out
+
+
+def test_structural_stage_end_to_end(trained_run):
+    work = trained_run
+    targets = ["results/tables/structural_inversion_errors.md", "results/structural/manifold_trajectories.png",
+               "results/structural/manifold_parallel_coordinates.png", "results/structural/manifold_svd.png",
+               "results/structural/missing_data_trajectories.png", "results/structural/jacobian_spectra.png"]
+    t = pd.read_csv(work / "results/tables/structural_inversion_errors.csv")
+    assert len(t) == 16 and (t["Max (ours)"] >= t["Mean (ours)"]).all() and "Mean (paper)" in t
+    obs = pd.read_csv(work / "results/tables/structural_observation.csv")
+    np.testing.assert_allclose(obs["y*"], paper_values.Y_STAR)
+    svd = json.loads((work / "results/structural/manifold_svd.json").read_text())
+    sv = pd.read_csv(work / "results/structural/manifold_svd.csv")["singular_value"]
+    # standardized columns: the squared singular values add up to n_samples per varying column
+    v = datasets.read_dataset(work / "results/structural/manifold_samples.parquet")[list(registry.PARAMETER_NAMES)]
+    v = v.to_numpy()[~outside_domain(v.to_numpy())]
+    assert len(v) == svd["n_samples"]
+    assert (sv**2).sum() == pytest.approx(len(v) * (v.std(axis=0) > 0).sum(), rel=1e-6)
+    assert svd["n_samples"] + svd["outside_domain"] == 200
+    miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
+    assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()
+    for name in registry.OUTPUT_NAMES:  # observed entries of y* are kept in every completion
+        if name not in paper_values.MISSING_OUTPUTS:
+            assert (miss[name] == obs.set_index("Output").loc[name, "y*"]).all()
+    jac = json.loads((work / "results/tables/structural_local_identifiability.json").read_text())
+    # V0_a, V0_v, V0_r, V0_pa, V0_pv set the outputs only through their sum: 4 exact null
+    # directions at every point, in which V0_a holds at least 1 - w_a^2 / sum w^2 = 0.93
+    shares = pd.read_csv(work / "results/tables/structural_local_identifiability.csv").set_index("Parameter")
+    assert shares.loc["V0_a", "null-space share (mean)"] * jac["local_manifold_dimension"] > 0.9
+    assert shares.loc["Hr", "null-space share (max)"] < 1e-6  # observed directly
+    for fig in targets[1:]:
+        assert (work / fig).with_suffix(".pdf").is_file()
+
+
+@needs_ehr_data
+def test_ehr_stage_end_to_end(trained_run):
+    work = trained_run
+    table = pd.read_csv(work / "results/tables/ehr_error_per_output.csv").set_index("Output")
+    assert list(table["Counts"]) == [f"{c}/46" for c in (46, 46, 46, 44, 11, 46, 46, 44, 46, 3, 0, 3, 45, 46, 46, 46)]
+    assert {"delta=0.5", "delta=2", "paper delta=0.5"} <= set(table.columns)
+    assert np.isnan(table.loc["V_l_sys", "delta=0.5"])
+    pred = pd.read_parquet(work / "results/ehr/predictions_delta0.5.parquet")
+    assert pred["id"].nunique() == 46 and len(pred) == 46 * 100
+    # observed entries of each patient are kept in the completion Algorithm 1 returns
+    obs = pd.read_csv(work / "results/ehr/patients.csv", index_col="patient")
+    first = pred.groupby("id").first()
+    for n in registry.OUTPUT_NAMES:
+        seen = obs[n].notna()
+        np.testing.assert_allclose(first.loc[obs.index[seen], "completed_" + n], obs.loc[seen, n])
+    ood = pd.read_csv(work / "results/tables/ehr_ood_delta0.5.csv")
+    assert len(ood) == 46 and ood["ood_percentile"].between(0, 100).all()
+
+
+
+@needs_ehr_data
+def test_calibration_stage_end_to_end(trained_run):
+    """Calibration tables of both methods, and the EHR patients' e_k three ways: the emulated
+    way equals table 5, the simulated ways are the simulator's outputs of the stored sets."""
+    work = trained_run
+    cal = pd.read_csv(work / "results/tables/calibration_summary.csv")
+    assert len(cal) == 2 * 2 * 23  # methods x noise levels x parameters
+    assert set(cal["method"]) == {"inVAErt", "NPE"} and set(cal["noise_level"]) == {0.5, 2.0}
+    assert cal["sbc_pvalue"].between(0, 1).all() and (cal["coverage_error"] >= 0).all()
+    assert (cal["n_cases"] == 20).all() and (cal["n_samples"] == 20).all()
+    for name in ("coverage.png", "rank_ecdf_delta0.5.png", "recovery_delta0.5.png"):
+        assert (work / "results/calibration" / name).is_file()
+    samples = np.load(work / "results/calibration/samples_delta2.npz")
+    assert samples["inVAErt"].shape == samples["NPE"].shape == (20, 20, 23)
+    # NPE samples stay in the prior box of the EHR study
+    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["ehr"])
+    assert (samples["NPE"] >= lo).all() and (samples["NPE"] <= hi).all()
+
+    methods = pd.read_csv(work / "results/tables/ehr_error_methods.csv").set_index("Output")
+    table5 = pd.read_csv(work / "results/tables/ehr_error_per_output.csv").set_index("Output")
+    for d in ("0.5", "2"):
+        np.testing.assert_allclose(methods[f"inVAErt via emulator, delta={d}"], table5[f"delta={d}"])
+        for way in ehr_methods.WAYS[1:]:
+            ek = methods[f"{way}, delta={d}"]
+            seen = table5["Counts"].str.split("/").str[0].astype(int) > 0
+            assert ek[seen].notna().sum() >= 1 and ek[~seen].isna().all()
+    assert "paper delta=0.5" in methods and "Lowest at delta=0.5" in methods
+    # the simulated outputs are the simulator's, of the parameter sets stored beside them
+    for f in ("ehr/predictions_delta0.5_simulated.parquet", "ehr/npe_predictions_delta0.5.parquet"):
+        pred = pd.read_parquet(work / "results" / f)
+        rows = pred[pred["sim_status"] == 0].head(5)
+        y, st = solver.simulate_batch(rows[list(registry.PARAMETER_NAMES)].to_numpy(), steps_per_cycle=200)
+        np.testing.assert_allclose(rows[[ehr_study.PRED + n for n in registry.OUTPUT_NAMES]].to_numpy(), y)
+    npe_pred = pd.read_parquet(work / "results/ehr/npe_predictions_delta0.5.parquet")
+    inv = pd.read_parquet(work / "results/ehr/predictions_delta0.5.parquet")
+    ok = inv[inv["status"] == "ok"]
+    assert npe_pred.loc[npe_pred["status"] == "ok", "id"].nunique() == ok["id"].nunique()
+    # NPE inverts the same completed outputs as inVAErt
+    a = npe_pred[npe_pred["status"] == "ok"].groupby("id").first()
+    b = ok.groupby("id").first()
+    cols = ["completed_" + n for n in registry.OUTPUT_NAMES]
+    np.testing.assert_array_equal(a.loc[b.index, cols].to_numpy(), b[cols].to_numpy())

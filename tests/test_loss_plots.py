@@ -1,11 +1,14 @@
 """Loss figures (cvsim6.loss_plots): a divergence spike is cut from the axes and marked."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from cvsim6 import loss_plots as lp
+from cvsim6 import networks
 
 
 def test_divergence_epochs_flags_a_spike_and_its_recovery_but_not_a_falling_or_rising_curve():
@@ -97,12 +100,13 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
 
     csv = str(_emulator_csv(tmp_path / "l.csv", False))  # losses fall from 1.1 to ~0.007
     record = {"epochs": 50, "chosen": 1, "seeds": [7, 8, 9, 10], "test_loss": [30.0, 0.09, 5.0, float("inf")]}
-    torch.save({"format": "x", "info": {"stage": "encoder_decoder", "restart": record}}, tmp_path / "m.pt")
+    fmt = networks.FORMAT
+    torch.save({"format": fmt, "info": {"stage": "encoder_decoder", "restart": record}}, tmp_path / "m.pt")
     assert lp.restart_record(tmp_path / "m.pt") == record
-    torch.save({"format": "x", "info": {}}, tmp_path / "plain.pt")
+    torch.save({"format": fmt, "info": {}}, tmp_path / "plain.pt")
     assert lp.restart_record(tmp_path / "plain.pt") is None
-    torch.save({"format": "x"}, tmp_path / "bad.pt")
-    with pytest.raises(ValueError, match="bad.pt"):
+    torch.save({"format": "x", "info": {"restart": record}}, tmp_path / "bad.pt")  # not a model file
+    with pytest.raises(ValueError, match=re.escape(f"bad.pt: not a {fmt} model file (format='x')")):
         lp.restart_record(tmp_path / "bad.pt")
 
     captured = {}

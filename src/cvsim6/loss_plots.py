@@ -17,6 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, MaxNLocator  # noqa: E402
 
+from . import networks  # noqa: E402
+
 #: y-axis label per kind of network (the file-name stem before ``_delta``).
 LOSS_LABELS = {
     "emulator": "MSE (standardized outputs)",
@@ -53,12 +55,7 @@ def restart_record(model: str | Path) -> dict | None:
     """The restart record a network trained with restarts keeps in its ``.pt`` file's ``info``
     (``epochs``: the epoch of the choice; ``chosen``: the candidate kept; ``seeds`` and
     ``test_loss``: per candidate, ``inf`` for one that diverged), ``None`` without restarts."""
-    import torch
-
-    payload = torch.load(model, map_location="cpu", weights_only=True)
-    if not isinstance(payload, dict) or "info" not in payload:
-        raise ValueError(f"{model}: not a trained-network file (no 'info')")
-    return payload["info"].get("restart")
+    return networks.read_info(model).get("restart")
 
 
 def _mark_restart(ax, restart: dict) -> None:

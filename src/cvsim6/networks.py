@@ -525,14 +525,27 @@ def save_model(model: nn.Module, path: str | Path, info: dict | None = None) -> 
     tmp.replace(path)
 
 
+def _read_payload(path: str | Path) -> dict:
+    """The dictionary :func:`save_model` wrote, checked to be one (on the CPU)."""
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    fmt = payload.get("format") if isinstance(payload, dict) else None
+    if fmt != FORMAT:
+        raise ValueError(f"{path}: not a {FORMAT} model file (format={fmt!r})")
+    return payload
+
+
+def read_info(path: str | Path) -> dict:
+    """The ``info`` a model file holds (training record, origin, noise level), without building
+    the model."""
+    return _read_payload(path).get("info", {})
+
+
 def load_model(path: str | Path, map_location: str | torch.device = "cpu", with_info: bool = False):
     """Rebuild a model saved by :func:`save_model`, in eval mode on ``map_location``.
 
     With ``with_info=True`` returns ``(model, info)``.
     """
-    payload = torch.load(path, map_location="cpu", weights_only=True)
-    if payload.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a {FORMAT} model file (format={payload.get('format')!r})")
+    payload = _read_payload(path)
     model = build_model(payload["kind"], payload["config"])
     dtype = next(iter(payload["state_dict"].values())).dtype
     model.to(dtype=dtype)

@@ -84,3 +84,24 @@ def test_seed_spread_puts_runs_side_by_side(tmp_path):
         tool.seed_spread({"s1": a, "s3": c})
     with pytest.raises(FileNotFoundError, match="'s4'"):
         tool.seed_spread({"s1": a, "s4": tmp_path / "nowhere"})
+
+
+def test_machine_speed_estimate_counts_copies_candidates_and_the_structural_chain():
+    tool = _load("machine_speed")
+    # the paper's split of a 54,000-set study: 4,000 validation, of the rest 3/4 train, 1/4 test
+    assert tool.split_sizes({"n_samples": 54000, "split": {"validation": 4000, "train_fraction": 0.75}}) == (37500, 12500)
+    ed = {"epochs": 7200, "restarts": 3, "restart_epochs": 500}
+    assert tool.schedule_epochs(ed) == 7200 + 2 * 500
+    assert tool.schedule_epochs({"epochs": 400}) == 400
+    training = {"studies": {
+        "structural": {"noise_levels": [0.0], "emulator": {"epochs": 5400}, "encoder_decoder": ed},
+        "ehr": {"noise_levels": [0.25, 0.5, 1.0, 2.0], "flow": {"epochs": 400}}}}
+    per_epoch = {("structural", "emulator"): 1.0, ("structural", "encoder_decoder"): 2.0, ("ehr", "flow"): 0.5}
+    df, total, wall = tool.estimate(per_epoch, training, cores=2)
+    cpu = df.set_index(["study", "network"])["cpu_s"]
+    assert cpu[("structural", "encoder_decoder")] == 2.0 * 8200 and cpu[("ehr", "flow")] == 4 * 400 * 0.5
+    assert total == 5400 + 16400 + 800
+    # 2 cores: the three candidates in two rounds of 500 epochs, then 6,700 more; longer than total / 2
+    assert wall == 5400 + 2.0 * (2 * 500 + 6700)
+    assert tool.estimate(per_epoch, training, cores=3)[2] == 5400 + 2.0 * (500 + 6700)
+    assert tool.estimate(per_epoch, training, cores=1)[2] == total

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import evaluation, registry, structural_study
+from cvsim6 import evaluation, networks, registry, structural_study
 
 
 def test_error_statistics_known_values():
@@ -44,16 +44,51 @@ def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
     samples = tmp_path / "samples.parquet"
     datasets.write_dataset(pd.DataFrame(v, columns=list(registry.PARAMETER_NAMES)), samples)
     csv = tmp_path / "rec.csv"
+    emulator = tmp_path / "emulator.pt"
+    networks.save_model(_constant_emulator(1.01 * y_star[0]), emulator)
     structural_study.manifold_reconstruction(str(samples), str(obs), csv=str(csv), summary=str(tmp_path / "rec.json"),
                                              md=str(tmp_path / "rec.md"), figure=str(tmp_path / "rec.png"),
-                                             simulator=sim, n_reconstruct=3, n_traces=3)
+                                             simulator=sim, n_reconstruct=3, n_traces=3, emulator=str(emulator))
     summary = json.loads((tmp_path / "rec.json").read_text())
     assert summary["outside_domain"] == 1 and summary["flagged"] == 0
     assert summary["max_rel_l2_error"] < 1e-12 and summary["max_rel_error_per_output"] < 1e-12  # rows 0 and 2 are y*'s own parameters
+    # the emulator answers 1.01 y* everywhere: 1% from y* (the decoder's share), and 1% from f(v) = y*
+    assert summary["max_rel_l2_error_decoder"] == pytest.approx(0.01, rel=1e-5)
+    assert summary["max_rel_l2_error_emulator"] == pytest.approx(0.01, rel=1e-5)
+    assert "of which the decoder" in (tmp_path / "rec.md").read_text()
     structural_study.manifold_svd_figure(str(samples), str(tmp_path / "svd.png"), str(tmp_path / "svd.csv"),
                                          str(tmp_path / "svd.json"))
     svd = json.loads((tmp_path / "svd.json").read_text())
     assert svd["n_samples"] == 3 and svd["outside_domain"] == 1
+
+
+def _constant_emulator(y: np.ndarray):
+    """An emulator whose answer is ``y`` (16,) for every parameter set: all weights zero, the
+    output scaler's mean at ``y``."""
+    import torch
+
+    emu = networks.Emulator(8, 2)
+    with torch.no_grad():
+        for p in emu.parameters():
+            p.zero_()
+    emu.y_scaler.mean.copy_(torch.as_tensor(y))
+    return emu
+
+
+def test_reconstruction_error_sources_known_values():
+    """y* = 10 e_0; the emulator answers y* + 4 e_1 for both sets, the simulator y* for the
+    first and y* + 3 e_1 for the second: decoder share 4/10 for both, emulator share 4/10 and
+    ||(0, 1)|| / ||(10, 3)||."""
+    y_star = np.zeros(16)
+    y_star[0] = 10.0
+    y_sim = np.array([y_star, y_star])
+    y_sim[1, 1] = 3.0
+    y_emu = np.array([y_star, y_star])
+    y_emu[:, 1] = 4.0
+    s = structural_study.reconstruction_error_sources(y_star, y_sim, y_emu)
+    assert s["max_rel_l2_error_decoder"] == pytest.approx(0.4) and s["median_rel_l2_error_decoder"] == pytest.approx(0.4)
+    assert s["max_rel_l2_error_emulator"] == pytest.approx(0.4)
+    assert s["median_rel_l2_error_emulator"] == pytest.approx((0.4 + 1 / np.hypot(10, 3)) / 2)
 
 
 def test_trajectory_panels_draw_every_set_and_target():

@@ -91,6 +91,7 @@ rule structural_reconstruction:
         code=code_for("cvsim6.structural_study:manifold_reconstruction"),
         samples=rules.structural_manifold.output.samples,
         observation=rules.structural_observation.output.csv,
+        emulator=f"{S_MODELS}/emulator.pt",
     output:
         csv=f"{NET_TABLES}/structural_manifold_reconstruction.csv",
         summary=f"{NET_TABLES}/structural_manifold_reconstruction.json",

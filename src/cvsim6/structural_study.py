@@ -169,15 +169,15 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, summary: s
                "max_rel_error_per_output": float(worst.max()), "worst_output": OUTPUT_NAMES[int(np.argmax(worst))]}
     sources = ""
     if emulator is not None:
-        y_emulated = np.asarray(load_model(emulator).predict(v[ok]), float)
-        info.update(reconstruction_error_sources(y_star, yhat[ok], y_emulated))
+        info.update(reconstruction_error_sources(y_star, yhat[ok], load_model(emulator).predict(v[ok])))
         sources = (f"; of which the decoder, ||NN_e(v) - y*|| / ||y*||: max {info['max_rel_l2_error_decoder']:.3%}, "
                    f"median {info['median_rel_l2_error_decoder']:.3%}, and the emulator at these sets, "
                    f"||NN_e(v) - f(v)|| / ||f(v)||: max {info['max_rel_l2_error_emulator']:.3%}")
     write_table(df, csv, md, caption=f"{int(ok.sum())} of {len(v)} decoded parameter sets for y* simulated "
                                      f"({_flag_words(st)}): largest relative l2 error ||f(v) - y*|| / ||y*|| "
-                                     f"{l2.max():.3%}, median {np.median(l2):.3%} (the paper's measure: about "
-                                     f"0.139%){sources}; below, the largest relative error of each output")
+                                     f"{info['max_rel_l2_error']:.3%}, median {info['median_rel_l2_error']:.3%} "
+                                     f"(the paper's measure: about 0.139%){sources}; below, the largest relative "
+                                     "error of each output")
     Path(summary).write_text(json.dumps(info, indent=2) + "\n")
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     cmap = plt.get_cmap("viridis")

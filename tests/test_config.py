@@ -117,7 +117,7 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
                 assert (h["lr_schedule"], h["eval_every"], h["keep_best"]) == ("step", 1, False), (study, net)
                 assert h["restarts"] == 1, (study, net)  # one initialization, as the paper
                 assert (h["lr_step"], h["lr_gamma"]) == (own[study][net]["lr_step"], own[study][net]["lr_gamma"])
-                if net == "emulator":  # the paper's plain MSE
-                    assert h["variance_floor"] is None, study
+                if net == "emulator":  # the paper's plain MSE, every row weighing the same
+                    assert h["variance_floor"] is None and h["relative_weight"] == 0, study
                 if net == "encoder_decoder":  # the paper's constant KL weight
                     assert h["kl_warmup_epochs"] == 0, study

@@ -83,9 +83,18 @@ def test_training_loss_figure_is_named_by_the_network(network, study, title, yla
     assert (tmp_path / "l.png").stat().st_size > 10_000
 
 
-def test_variance_floored_emulator_gets_its_own_label_and_bad_names_are_refused(tmp_path):
+def test_weighted_emulator_gets_its_own_label_and_bad_names_are_refused(tmp_path):
+    """The label of a weighted emulator loss names the weighting its model file records."""
+    import torch
+
     csv = str(_emulator_csv(tmp_path / "l.csv", True))
-    assert lp.plot_training_losses(csv, str(tmp_path / "l.png"), "emulator")["ylabel"] == "MSE, output variances floored"
+    assert lp.plot_training_losses(csv, str(tmp_path / "l.png"), "emulator")["ylabel"] == "weighted MSE (standardized outputs)"
+    for hyper, label in [({"variance_floor": 0.01, "relative_weight": 0.0}, "MSE, output variances floored"),
+                         ({"variance_floor": None, "relative_weight": 0.5}, "MSE, rows weighted by 1/|y|² (a = 0.5)"),
+                         ({"variance_floor": 0.01, "relative_weight": 1},
+                          "MSE, output variances floored, rows weighted by 1/|y|² (a = 1)")]:
+        torch.save({"format": networks.FORMAT, "info": {"stage": "emulator", "hyper": hyper}}, tmp_path / "m.pt")
+        assert lp.plot_training_losses(csv, str(tmp_path / "l.png"), "emulator", model=str(tmp_path / "m.pt"))["ylabel"] == label
     with pytest.raises(ValueError, match="'emulator_delta0.5'"):
         lp.plot_training_losses(csv, str(tmp_path / "x.png"), "emulator_delta0.5")
     assert not (tmp_path / "x.png").exists()

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pandas as pd
@@ -524,6 +525,12 @@ def test_hyper_validation():
             tr.check_hyper("emulator", EMU | {"variance_floor": bad})
     with pytest.raises(ValueError, match="unknown"):  # an emulator option only
         tr.check_hyper("flow", FLOW | {"variance_floor": 1e-3})
+    for bad in (-0.1, 1.5, True, "0.5", float("nan"), None):
+        with pytest.raises(ValueError, match=f"relative_weight must be a number in \\[0, 1\\], got {re.escape(repr(bad))}"):
+            tr.check_hyper("emulator", EMU | {"relative_weight": bad})
+    assert tr.check_hyper("emulator", EMU)["relative_weight"] == 0.0
+    with pytest.raises(ValueError, match="unknown"):
+        tr.check_hyper("encoder_decoder", ENCDEC | {"relative_weight": 0.5})
     for bad in (-1, 2.5, ENCDEC["epochs"] + 1):
         with pytest.raises(ValueError, match="kl_warmup_epochs"):
             tr.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
@@ -723,6 +730,70 @@ def test_variance_floor_emulator_loss(data, tmp_path):
     train = pd.read_parquet(data[0])
     wt = tr.variance_floor_matrix(model.y_scaler.transform(train[list(OUTPUT_NAMES)].to_numpy()), 0.05)
     assert df["test_loss"].iloc[-1] == pytest.approx(((err @ wt) ** 2).mean(), rel=1e-3)
+
+
+def test_relative_sample_weights_follow_the_inverse_squared_norm():
+    """Weights ``(1 - a) + a (1/|y_i|^2) / mean_j(1/|y_train_j|^2)``: mean 1 over the training
+    rows, ratios of the inverse squared norms at a = 1, ones at a = 0; a zero or non-finite row
+    is named."""
+    rng = np.random.default_rng(0)
+    y_tr, y_te = rng.normal(size=(300, 16)) * 50 + 200, rng.normal(size=(40, 16)) * 50 + 200
+    w = tr.relative_sample_weights(y_tr, y_tr, 1.0)
+    assert w.mean() == pytest.approx(1.0, rel=1e-12)
+    n2 = (y_tr ** 2).sum(1)
+    np.testing.assert_allclose(w[:5] / w[5:10], n2[5:10] / n2[:5], rtol=1e-12)
+    np.testing.assert_array_equal(tr.relative_sample_weights(y_tr, y_te, 0.0), np.ones(40))
+    w_te, w_te1 = tr.relative_sample_weights(y_tr, y_te, 0.25), tr.relative_sample_weights(y_tr, y_te, 1.0)
+    np.testing.assert_allclose(w_te, 0.75 + 0.25 * w_te1, rtol=1e-12)
+    # the test rows use the training rows' normalization: a row equal to a training row weighs the same
+    y_te[3] = y_tr[7]
+    assert tr.relative_sample_weights(y_tr, y_te, 1.0)[3] == pytest.approx(w[7], rel=1e-12)
+    y_bad = y_te.copy()
+    y_bad[11] = 0.0
+    with pytest.raises(ValueError, match="row 11 of the given outputs has the squared norm 0.0"):
+        tr.relative_sample_weights(y_tr, y_bad, 1.0)
+    y_bad[11] = np.nan
+    with pytest.raises(ValueError, match="row 11 of the given outputs has the squared norm nan"):
+        tr.relative_sample_weights(y_tr, y_bad, 1.0)
+
+
+def test_relative_weight_emulator_loss(data, tmp_path):
+    """The stage's loss is the row-weighted mean of the squared standardized errors (with the
+    variance floor: of the floored errors), the ``mse`` part the plain MSE; unit weights give back
+    the plain loss. Trained with it, the losses CSV's test loss is that weighted MSE of the saved
+    model on the test split, with weights from the physical outputs."""
+    torch.manual_seed(0)
+    net = nw.Emulator(16, 3)
+    v, y = torch.randn(50, 23), torch.randn(50, 16)
+    w = np.random.default_rng(2).uniform(0.1, 5.0, size=50)
+    st = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(w, w))
+    idx = torch.arange(10, 40)
+    loss, parts = st.batch_loss(idx)
+    with torch.no_grad():
+        err = (net(v) - y).double().numpy()
+    assert float(loss.detach()) == pytest.approx(float(np.mean(err[10:40] ** 2 * w[10:40, None])), rel=1e-5)
+    assert float(parts["mse"]) == pytest.approx(float(np.mean(err[10:40] ** 2)), rel=1e-5)
+    assert st.evaluate()[0] == pytest.approx(float(np.mean(err ** 2 * w[:, None])), rel=1e-5)
+    ones = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(np.ones(50), np.ones(50)))
+    assert float(ones.batch_loss(idx)[0].detach()) == pytest.approx(float(parts["mse"]), rel=1e-6)
+    vf = tr.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
+    both = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=vf, row_weights=(w, w))
+    assert float(both.batch_loss(idx)[0].detach()) == pytest.approx(
+        float(np.mean((err[10:40] @ vf) ** 2 * w[10:40, None])), rel=1e-5)
+
+    hyper = EMU | {"epochs": 6, "relative_weight": 0.7}
+    tr.train_emulator(str(data[0]), str(data[1]), hyper=hyper, seed=3, device="cpu", progress=False,
+                      **_paths(tmp_path, "r"))
+    df = pd.read_csv(tmp_path / "r.csv")
+    model, info = nw.load_model(tmp_path / "r.pt", with_info=True)
+    assert isinstance(model, nw.Emulator) and info["hyper"]["relative_weight"] == 0.7
+    train, test = pd.read_parquet(data[0]), pd.read_parquet(data[1])
+    tv, ty = test[list(PARAMETER_NAMES)].to_numpy(), test[list(OUTPUT_NAMES)].to_numpy()
+    err = (model.predict(tv) - ty) / model.y_scaler.std.double().numpy()
+    wt = tr.relative_sample_weights(train[list(OUTPUT_NAMES)].to_numpy(), ty, 0.7)
+    assert df["test_mse"].iloc[-1] == pytest.approx((err ** 2).mean(), rel=1e-3)
+    assert df["test_loss"].iloc[-1] == pytest.approx((err ** 2 * wt[:, None]).mean(), rel=1e-3)
+    assert df["test_loss"].iloc[-1] != pytest.approx(df["test_mse"].iloc[-1], rel=1e-3)
 
 
 def test_resolve_device():

@@ -32,9 +32,10 @@ def plot_training_losses(losses: str, figure: str, network: str, study: str = ""
     """Workflow step: draw ``losses`` (CSV of one network's training) into ``figure`` (PNG).
     ``network`` is the file stem, e.g. ``"emulator"``, ``"flow_delta0.5"``,
     ``"encoder_decoder_delta1"`` or ``"npe_delta2"``; it sets the title and the y label (an
-    emulator CSV with ``train_mse`` columns was trained with a variance floor: its loss is the
-    floored MSE). ``model``, the trained network's ``.pt`` file, when given: a network trained
-    with restarts (its ``info["restart"]``) gets its candidates marked (see :func:`plot_losses`).
+    emulator CSV with ``train_mse`` columns was trained with a weighted loss, see
+    :func:`emulator_loss_label`). ``model``, the trained network's ``.pt`` file, when given: a
+    network trained with restarts (its ``info["restart"]``) gets its candidates marked (see
+    :func:`plot_losses`), and an emulator's label names its loss weighting.
     Returns the ``title``, ``ylabel``, ``cut`` (:func:`plot_losses`' record of what the axes cut)
     and ``restart`` (the model's restart record, ``None`` without one) of the figure."""
     m = re.fullmatch(r"emulator|(flow|encoder_decoder|npe)_delta([0-9]+(?:\.[0-9]*)?)", network)
@@ -43,12 +44,23 @@ def plot_training_losses(losses: str, figure: str, network: str, study: str = ""
     kind, delta = m.groups() if m.group(1) else ("emulator", None)
     ylabel = LOSS_LABELS[kind]
     if kind == "emulator" and "train_mse" in pd.read_csv(losses, nrows=0).columns:
-        ylabel = "MSE, output variances floored"
+        ylabel = emulator_loss_label(networks.read_info(model).get("hyper", {}) if model else {})
     where = ", ".join(x for x in (study, f"delta={float(delta):g}" if delta else "") if x)
     title = {"npe": "NPE"}.get(kind, kind) + (f" ({where})" if where else "")
     restart = restart_record(model) if model else None
     cut = plot_losses(losses, figure, title=title, ylabel=ylabel, restart=restart)
     return {"title": title, "ylabel": ylabel, "cut": cut, "restart": restart}
+
+
+def emulator_loss_label(hyper: dict) -> str:
+    """y label of a weighted emulator loss from its training hyperparameters (``variance_floor``,
+    ``relative_weight``; see :mod:`cvsim6.training`); "weighted MSE" when neither is known."""
+    words = []
+    if hyper.get("variance_floor") is not None:
+        words.append("output variances floored")
+    if hyper.get("relative_weight", 0):
+        words.append(f"rows weighted by 1/|y|² (a = {hyper['relative_weight']:g})")
+    return "MSE, " + ", ".join(words) if words else "weighted MSE (standardized outputs)"
 
 
 def restart_record(model: str | Path) -> dict | None:

@@ -32,7 +32,15 @@ the one with the lowest test loss there trains on; see :func:`_train`).
   plain MSE. P_r_sys and P_pa_sys differ by the pulmonary-valve drop, about 2% of either one's
   spread: their difference is C's smallest direction (variance ~6e-5), which the plain MSE
   weighs so little that it is learned last. The losses CSV then has ``train_mse``/``test_mse``
-  columns, the plain MSE, beside the weighted loss).
+  columns, the plain MSE, beside the weighted loss); ``relative_weight`` (default 0: every
+  training row weighs the same; a in (0, 1]: row i's squared error is weighted by
+  ``(1 - a) + a * (1/|y_i|^2) / mean_j(1/|y_j|^2)``, with ``|y|`` the Euclidean norm of the
+  physical outputs and the mean over the training rows, so the loss mixes the standardized MSE
+  with the squared error relative to the output vector's norm, the paper's relative l2 metric.
+  Without it the relative l2 error peaks where ``|y|`` is smallest (the EHR prior's low-SVR
+  corner, ``|y|`` ~300 against a median of ~1,200); the weights average 1 over the training rows,
+  the test rows use the same normalization. The losses CSV then has the ``train_mse``/``test_mse``
+  columns too).
 * flow: ``hidden``, ``blocks``, ``layers_per_block`` (Linear layers per s/t net, paper 4),
   ``batchnorm`` (bool); optional ``noisy_scaling`` (see below).
 * encoder_decoder: ``latent_dim``, ``encoder_hidden``, ``encoder_layers``, ``decoder_hidden``,
@@ -108,7 +116,7 @@ _COMMON_OPTIONAL = {"weight_decay": 0.0, "grad_clip": 0.0, "lr_schedule": "step"
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
     "emulator": (_COMMON_REQUIRED + ("hidden", "layers"),
-                 {**_COMMON_OPTIONAL, "activation": "silu", "variance_floor": None}),
+                 {**_COMMON_OPTIONAL, "activation": "silu", "variance_floor": None, "relative_weight": 0.0}),
     "flow": (_COMMON_REQUIRED + ("hidden", "blocks", "layers_per_block", "batchnorm"),
              {**_COMMON_OPTIONAL, "noisy_scaling": False}),
     "encoder_decoder": (
@@ -154,6 +162,9 @@ def check_hyper(stage: str, hyper: dict) -> dict:
     f = h["variance_floor"] if stage == "emulator" else None
     if f is not None and not (isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f > 0):
         raise ValueError(f"emulator hyperparameter variance_floor must be null or a number > 0, got {f!r}")
+    a = h["relative_weight"] if stage == "emulator" else 0.0
+    if not (isinstance(a, (int, float)) and not isinstance(a, bool) and 0.0 <= a <= 1.0):
+        raise ValueError(f"emulator hyperparameter relative_weight must be a number in [0, 1], got {a!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")
     if stage == "encoder_decoder" and (int(h["kl_warmup_epochs"]) != h["kl_warmup_epochs"]
@@ -278,36 +289,56 @@ def variance_floor_matrix(y_std: np.ndarray, floor: float) -> np.ndarray:
     return (vec * np.sqrt(np.maximum(1.0, float(floor) / lam))) @ vec.T
 
 
+def relative_sample_weights(y_train: np.ndarray, y: np.ndarray, relative_weight: float) -> np.ndarray:
+    """Row weights (N,) ``(1 - a) + a * (1/|y_i|^2) / mean_j(1/|y_train_j|^2)`` for the physical
+    outputs ``y`` (N, n_out), ``|.|`` the Euclidean norm over the outputs and the mean over the
+    rows of ``y_train``: they average 1 over ``y_train``; ``a = 0`` gives ones. Raises
+    ``ValueError`` naming the first row whose norm is zero or not finite."""
+    norms2 = {name: np.sum(np.asarray(a, np.float64) ** 2, axis=1) for name, a in (("training", y_train), ("given", y))}
+    for name, n2 in norms2.items():
+        bad = np.flatnonzero(~(np.isfinite(n2) & (n2 > 0)))
+        if bad.size:
+            raise ValueError(f"relative weights: row {bad[0]} of the {name} outputs has the squared norm {float(n2[bad[0]])!r}")
+    a = float(relative_weight)
+    return (1.0 - a) + a * (1.0 / norms2["given"]) / np.mean(1.0 / norms2["training"])
+
+
 class EmulatorStage(_Stage):
     """MSE of ``NN_e`` on clean standardized data (no noise, no randomness besides shuffling);
-    with ``weighting`` (a matrix W, :func:`variance_floor_matrix`) the MSE of ``(pred - y) @ W``,
-    and the plain MSE as the part ``mse``."""
+    with ``weighting`` (a matrix W, :func:`variance_floor_matrix`) the MSE of ``(pred - y) @ W``;
+    with ``row_weights`` (training, test: (N,) each, :func:`relative_sample_weights`) each row's
+    squared errors times its weight. With either, the plain MSE is the part ``mse``."""
 
     name = "emulator"
 
     def __init__(self, model: nw.Emulator, v_tr, y_tr, v_te, y_te, device, dtype=torch.float32,
-                 weighting: np.ndarray | None = None):
+                 weighting: np.ndarray | None = None,
+                 row_weights: tuple[np.ndarray, np.ndarray] | None = None):
         super().__init__(len(v_tr), device, dtype)
         self.model = model
         self.v_tr, self.y_tr = self.tensor(v_tr), self.tensor(y_tr)
         self.v_te, self.y_te = self.tensor(v_te), self.tensor(y_te)
         self.y_epoch = self.y_tr  # targets of the current epoch: always the clean data
         self.weighting = None if weighting is None else self.tensor(weighting)
-        self.parts = () if weighting is None else ("mse",)
+        self.w_tr, self.w_te = (None, None) if row_weights is None else (self.tensor(row_weights[0])[:, None],
+                                                                           self.tensor(row_weights[1])[:, None])
+        self.parts = () if weighting is None and row_weights is None else ("mse",)
 
-    def _loss(self, v, y):
+    def _loss(self, v, y, w=None):
         pred = self.model(v)
-        if self.weighting is None:
+        if not self.parts:
             return nw.emulator_loss(pred, y), {}
-        weighted = torch.mean(((pred - y) @ self.weighting) ** 2)
-        return weighted, {"mse": nw.emulator_loss(pred.detach(), y)}
+        err = pred - y if self.weighting is None else (pred - y) @ self.weighting
+        sq = err ** 2 if w is None else err ** 2 * w
+        return torch.mean(sq), {"mse": nw.emulator_loss(pred.detach(), y)}
 
     def batch_loss(self, idx):
-        return self._loss(self.v_tr[idx], self.y_epoch[idx])
+        return self._loss(self.v_tr[idx], self.y_epoch[idx], None if self.w_tr is None else self.w_tr[idx])
 
     @torch.no_grad()
     def evaluate(self):
-        return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s]))
+        return _chunked_mean(len(self.v_te), lambda s: self._loss(
+            self.v_te[s], self.y_te[s], None if self.w_te is None else self.w_te[s]))
 
 
 class FlowStage(_Stage):
@@ -748,8 +779,10 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
         net.to(dev, dtype)
         y_tr_std = net.y_scaler.transform(y_tr)
         weighting = None if h["variance_floor"] is None else variance_floor_matrix(y_tr_std, h["variance_floor"])
+        a = h["relative_weight"]
+        rows = None if a == 0 else (relative_sample_weights(y_tr, y_tr, a), relative_sample_weights(y_tr, y_te, a))
         return EmulatorStage(net, net.x_scaler.transform(v_tr), y_tr_std,
-                             net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype, weighting)
+                             net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), dev, dtype, weighting, rows)
 
     fp = _fingerprint(stage="emulator", hyper=h, seed=seed, data=_digest(v_tr, y_tr, v_te, y_te), fmt=nw.FORMAT)
     info = {"stage": "emulator", "hyper": h, "seed": seed, "noise_level": 0.0, "n_train": len(v_tr), "n_test": len(v_te)}

@@ -130,6 +130,11 @@ _EVAL_CHUNK = 65536
 
 
 # ----------------------------------------------------------------------------- helpers
+def _is_real(x) -> bool:
+    """A finite int or float, not a bool (YAML's ``true`` is an int to Python)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
 def check_hyper(stage: str, hyper: dict) -> dict:
     """Validated copy of ``hyper`` for ``stage`` with optional keys filled in."""
     required, optional = HYPER_KEYS[stage]
@@ -160,10 +165,10 @@ def check_hyper(stage: str, hyper: dict) -> dict:
     if not 0.0 <= float(h["lr_final"]) <= 1.0:
         raise ValueError(f"{stage} hyperparameter lr_final must be in [0, 1], got {h['lr_final']!r}")
     f = h["variance_floor"] if stage == "emulator" else None
-    if f is not None and not (isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f > 0):
+    if f is not None and not (_is_real(f) and f > 0):
         raise ValueError(f"emulator hyperparameter variance_floor must be null or a number > 0, got {f!r}")
     a = h["relative_weight"] if stage == "emulator" else 0.0
-    if not (isinstance(a, (int, float)) and not isinstance(a, bool) and 0.0 <= a <= 1.0):
+    if not (_is_real(a) and 0.0 <= a <= 1.0):
         raise ValueError(f"emulator hyperparameter relative_weight must be a number in [0, 1], got {a!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")

@@ -36,8 +36,8 @@ def test_geometric_mean_ratio_and_best_delta():
     assert scorecard.best_delta_agreement(t, outputs) == 12
 
 
-def test_scorecard_of_a_source_equal_to_the_paper(tmp_path):
-    """A source whose every number is the paper's gets ratio 1 on every headline."""
+def _paper_files(tmp_path) -> dict:
+    """Headline files of a source whose every number is the paper's."""
     h = paper_values.STRUCTURAL_HEADLINES
     paper_table = pd.DataFrame({"Output": list(OUTPUT_NAMES)})
     for stat in ("mean", "max"):
@@ -58,6 +58,12 @@ def test_scorecard_of_a_source_equal_to_the_paper(tmp_path):
     files["missing"].write_text(f'{{"max_rel_l2_error_observed": {h["max_rel_error_missing"]}}}')
     files["ehr_emulator"].write_text(f'{{"max": {paper_values.EHR_EMULATOR_MAX_REL_L2}}}')
     ehr_table(1.0, COUNTS).to_csv(files["ehr_errors"], index=False)
+    return files
+
+
+def test_scorecard_of_a_source_equal_to_the_paper(tmp_path):
+    """A source whose every number is the paper's gets ratio 1 on every headline."""
+    files = _paper_files(tmp_path)
     missing_other = {k: str(tmp_path / "absent" / p.name) for k, p in files.items()}
     scorecard.write_scorecard(str(tmp_path / "card.csv"), str(tmp_path / "card.md"), "trained",
                               {"published": missing_other}, **{k: str(v) for k, v in files.items()})
@@ -66,3 +72,20 @@ def test_scorecard_of_a_source_equal_to_the_paper(tmp_path):
     np.testing.assert_allclose(card["trained / paper"], 1.0, rtol=1e-12)
     md = (tmp_path / "card.md").read_text()
     assert "22 of 22 within 1.15x" in md and "not built yet, so not shown: published" in md
+
+
+def test_resampled_manifold_headline_is_a_row_of_its_own(tmp_path):
+    """With the reconstruction's spread in its summary, the median of the resampled max is one
+    more row, its ratio against the paper's max; the first-100 headline stays as it was."""
+    h = paper_values.STRUCTURAL_HEADLINES
+    files = _paper_files(tmp_path)
+    files["manifold"].write_text(
+        f'{{"max_rel_l2_error": {h["max_rel_error_manifold"]}, "max_rel_l2_error_resampled": {{"n_simulated": 5000, '
+        f'"subset": 100, "resamples": 2000, "q10": 0.001, "q50": {2 * h["max_rel_error_manifold"]}, "q90": 0.01}}}}')
+    values, rows = scorecard.headline_values({k: str(v) for k, v in files.items()})
+    assert values["manifold_l2"] == pytest.approx(100 * h["max_rel_error_manifold"])
+    assert values["manifold_l2_resampled"] == pytest.approx(200 * h["max_rel_error_manifold"])
+    row = next(r for r in rows if r.key == "manifold_l2_resampled")
+    assert "2,000 random sets of 100 of 5,000 draws" in row.label
+    assert scorecard._ratio(values[row.key], row) == pytest.approx(2.0)
+    assert len(rows) == 23

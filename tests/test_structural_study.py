@@ -62,6 +62,57 @@ def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
     assert svd["n_samples"] == 3 and svd["outside_domain"] == 1
 
 
+def test_max_of_random_subsets_follows_the_exact_distribution():
+    """The max of a random k-subset of n distinct values has P(max <= the j-th smallest) =
+    C(j, k) / C(n, k); with k >= n every draw is the overall max; a seed repeats its draws."""
+    from math import comb
+
+    e = np.random.default_rng(3).permutation(np.arange(20.0))  # the values 0..19, any order
+    m = evaluation.max_of_random_subsets(e, 5, 20000, seed=1)
+    for j in (5, 10, 15, 19):
+        assert np.mean(m <= j - 1) == pytest.approx(comb(j, 5) / comb(20, 5), abs=0.015)
+    assert np.array_equal(m, evaluation.max_of_random_subsets(e, 5, 20000, seed=1))
+    assert (evaluation.max_of_random_subsets(e, 25, 10) == 19.0).all()
+    with pytest.raises(ValueError, match="subset and resamples must be >= 1, got 0"):
+        evaluation.max_of_random_subsets(e, 0, 10)
+
+
+def test_reconstruction_spread_is_the_order_statistics_and_leaves_the_headline(tmp_path):
+    """Six decoded sets, the headline over the first three: the max of a random three of the six
+    is the 6th smallest error with probability 1/2, the 4th or less with 1/4, so the 90% quantile
+    is the largest error and the 10% one the 4th smallest; the first-three headline and its table
+    are those of a run without the spread, bit for bit."""
+    from cvsim6 import datasets, solver
+
+    sim = {"steps_per_cycle": solver.DEFAULT_STEPS_PER_CYCLE, "n_cycles": solver.DEFAULT_N_CYCLES,
+           "window_cycles": solver.DEFAULT_WINDOW_CYCLES}
+    v = np.repeat(registry.default_parameters()[None], 6, axis=0)
+    v[:, registry.PARAMETER_INDEX["V0_v"]] *= 1.0 + np.array([0.0, 0.02, 0.005, 0.03, 0.01, 0.04])
+    y, _ = solver.simulate_batch(v)
+    obs = tmp_path / "obs.csv"
+    pd.DataFrame({"Output": list(registry.OUTPUT_NAMES), "y*": y[0]}).to_csv(obs, index=False)
+    samples = tmp_path / "samples.parquet"
+    datasets.write_dataset(pd.DataFrame(v, columns=list(registry.PARAMETER_NAMES)), samples)
+    errors = np.sort(evaluation.relative_l2_errors(np.broadcast_to(y[0], y.shape), y))
+    out = {}
+    for name, n_spread in (("plain", 0), ("spread", 6)):
+        structural_study.manifold_reconstruction(
+            str(samples), str(obs), csv=str(tmp_path / f"{name}.csv"), summary=str(tmp_path / f"{name}.json"),
+            md=str(tmp_path / f"{name}.md"), figure=str(tmp_path / f"{name}.png"), simulator=sim, n_reconstruct=3,
+            n_traces=3, n_spread=n_spread, spread_resamples=500, seed=4)
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    spread = out["spread"].pop("max_rel_l2_error_resampled")
+    assert out["spread"] == out["plain"]
+    assert (tmp_path / "spread.csv").read_bytes() == (tmp_path / "plain.csv").read_bytes()
+    first3 = evaluation.relative_l2_errors(np.broadcast_to(y[0], (3, 16)), y[:3])
+    assert out["plain"]["max_rel_l2_error"] == pytest.approx(first3.max(), rel=1e-12)
+    assert spread["n_simulated"] == 6 and spread["subset"] == 3 and spread["outside_domain"] == 0
+    assert spread["q90"] == pytest.approx(errors[5], rel=1e-12)
+    assert spread["q10"] == pytest.approx(errors[3], rel=1e-12)
+    assert spread["median_rel_l2_error"] == pytest.approx(np.median(errors), rel=1e-12)
+    assert "10/50/90% quantiles" in (tmp_path / "spread.md").read_text()
+
+
 def _constant_emulator(y: np.ndarray):
     """An emulator whose answer is ``y`` (16,) for every parameter set: all weights zero, the
     output scaler's mean at ``y``."""

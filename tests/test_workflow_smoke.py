@@ -203,6 +203,11 @@ def test_structural_stage_end_to_end(trained_run):
     assert len(v) == svd["n_samples"]
     assert (sv**2).sum() == pytest.approx(len(v) * (v.std(axis=0) > 0).sum(), rel=1e-6)
     assert svd["n_samples"] + svd["outside_domain"] == 200
+    # the reconstruction's spread (smoke config: all 200 draws simulated, sets of the first 100's size)
+    rec = json.loads((work / "results/tables/structural_manifold_reconstruction.json").read_text())
+    spread = rec["max_rel_l2_error_resampled"]
+    assert spread["n_simulated"] == 200 and spread["subset"] == rec["n"] == 100
+    assert spread["median_rel_l2_error"] <= spread["q10"] <= spread["q50"] <= spread["q90"]
     miss = pd.read_csv(work / "results/tables/structural_missing_data.csv")
     assert len(miss) == 4 and (np.diff(miss["log_density"]) <= 0).all()
     for name in registry.OUTPUT_NAMES:  # observed entries of y* are kept in every completion
@@ -216,6 +221,15 @@ def test_structural_stage_end_to_end(trained_run):
     assert shares.loc["Hr", "null-space share (max)"] < 1e-6  # observed directly
     for fig in targets[1:]:
         assert (work / fig).with_suffix(".pdf").is_file()
+
+
+@needs_ehr_data
+def test_scorecard_shows_the_reconstruction_spread(trained_run):
+    work = trained_run
+    rec = json.loads((work / "results/tables/structural_manifold_reconstruction.json").read_text())
+    card = pd.read_csv(work / "results/report/reproduction.csv").set_index("Headline")
+    row = card.loc[card.index.str.contains("median over 2,000 random sets of 100 of 200 draws")]
+    assert len(row) == 1 and row["trained"].iloc[0] == pytest.approx(100 * rec["max_rel_l2_error_resampled"]["q50"])
 
 
 @needs_ehr_data

@@ -71,6 +71,20 @@ def relative_l2_errors(y_true: np.ndarray, y_pred: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.asarray(y_pred, float) - y_true, axis=1) / np.linalg.norm(y_true, axis=1)
 
 
+def max_of_random_subsets(errors: np.ndarray, subset: int, resamples: int, seed: int = 0) -> np.ndarray:
+    """The largest of ``subset`` errors drawn without replacement from ``errors`` (n,), for each of
+    ``resamples`` independent draws (seeded): (resamples,). The spread of a "max over k draws"
+    headline that comes from which k draws were taken (``subset`` >= n gives the overall max)."""
+    e = np.asarray(errors, float)
+    if e.ndim != 1 or not e.size:
+        raise ValueError(f"errors must be a non-empty 1-D array, got shape {e.shape}")
+    if int(subset) < 1 or int(resamples) < 1:
+        raise ValueError(f"subset and resamples must be >= 1, got {subset!r}, {resamples!r}")
+    k = min(int(subset), e.size)
+    rng = np.random.default_rng(seed)
+    return np.array([e[rng.choice(e.size, k, replace=False)].max() for _ in range(int(resamples))])
+
+
 def emulator_l2_histogram(model: str, validation: str, figure: str, summary: str, study: str = "ehr") -> None:
     """Histogram of the emulator's relative l2 error on the validation split (the paper's
     figure for the EHR emulator, max 0.984%; no paper value for the structural study)."""

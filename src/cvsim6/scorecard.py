@@ -98,6 +98,11 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
     h = paper_values.STRUCTURAL_HEADLINES
     add("manifold_l2", "Manifold reconstruction of y*: max relative l2 error (%)", 100 * h["max_rel_error_manifold"],
         "section 3.3.2, fig. 8", files["manifold"], 100 * _read_json(files["manifold"])["max_rel_l2_error"])
+    spread = _read_json(files["manifold"]).get("max_rel_l2_error_resampled")
+    if spread:  # beyond the paper: the same max, for other draws than the first 100
+        add("manifold_l2_resampled", f"Manifold reconstruction: the same max over {spread['subset']} draws, median over "
+            f"{spread['resamples']:,} random sets of {spread['subset']} of {spread['n_simulated']:,} draws (%)",
+            100 * h["max_rel_error_manifold"], "section 3.3.2, fig. 8", files["manifold"], 100 * spread["q50"])
     svd = _read_json(files["svd"])
     add("svd_modes", "SVD of the manifold: modes for 99% of the energy", h["modes_99"], "section 3.3.2, fig. 10",
         files["svd"], svd["modes"])

@@ -116,6 +116,9 @@ rule structural_reconstruction:
         simulator=config["simulator"],
         n_reconstruct=SCFG["n_reconstruct"],
         n_traces=SCFG["n_traces"],
+        n_spread=SCFG["n_spread"],
+        spread_resamples=SCFG["spread_resamples"],
+        seed=config["seed"],
     script:
         "../scripts/call.py"
 

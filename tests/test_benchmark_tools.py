@@ -105,3 +105,37 @@ def test_machine_speed_estimate_counts_copies_candidates_and_the_structural_chai
     assert wall == 5400 + 2.0 * (2 * 500 + 6700)
     assert tool.estimate(per_epoch, training, cores=3)[2] == 5400 + 2.0 * (500 + 6700)
     assert tool.estimate(per_epoch, training, cores=1)[2] == total
+
+
+def test_batched_copies_compute_each_copys_loss_and_gradient():
+    """The batched flow and encoder/decoder of benchmarks/batched_copies.py are the copies: each
+    copy's loss equals its own network's, a change to one copy's weights moves that copy's loss
+    only, and the gradient of the summed loss is each network's own gradient, stacked."""
+    import torch
+
+    from cvsim6 import networks as nw
+
+    bc = _load("batched_copies")
+    torch.manual_seed(0)
+    flows = [nw.RealNVP(hidden=6, blocks=3, layers_per_block=3, batchnorm=True) for _ in range(3)]
+    grouped = bc.GroupedFlow(flows)
+    y = torch.randn(3, 32, 16, dtype=torch.float32)
+    own = torch.stack([nw.flow_nll(f, y[k]) for k, f in enumerate(flows)])
+    batched = grouped.nll(y)
+    torch.testing.assert_close(batched, own, rtol=1e-5, atol=1e-5)
+    batched.sum().backward()
+    own.sum().backward()
+    torch.testing.assert_close(grouped.layers[0]["s"][0].weight.grad[1], flows[1].layers[0].s[0].weight.grad.t(),
+                               rtol=1e-4, atol=1e-6)
+    with torch.no_grad():
+        grouped.layers[0]["s"][0].weight[2] += 0.1
+        moved = grouped.nll(y) != own
+    assert moved.tolist() == [False, False, True]
+    eds = [nw.EncoderDecoder(latent_dim=4, encoder_hidden=8, encoder_layers=3, decoder_hidden=8, decoder_layers=3)
+           for _ in range(2)]
+    emulator = nw.Emulator(8, 3).requires_grad_(False)
+    v, y, eps = torch.randn(2, 16, 23), torch.randn(2, 16, 16), torch.randn(2, 16, 4)
+    own = torch.stack([nw.encoder_decoder_loss(m, v[k], y[k], eps[k], emulator, 1000.0, 1.0, 10.0, reduction="mse")[0]
+                       for k, m in enumerate(eds)])
+    torch.testing.assert_close(bc.GroupedEncoderDecoder(eds).loss(v, y, eps, emulator, 1000.0, 1.0, 10.0), own,
+                               rtol=1e-5, atol=1e-5)

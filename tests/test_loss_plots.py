@@ -60,6 +60,11 @@ def test_loss_figure_scales_to_the_healthy_epochs_and_marks_the_cut(tmp_path):
     assert lp.plot_losses(tmp_path / "n.csv", tmp_path / "n.png") == {}
 
 
+def test_cut_label_names_one_epoch_or_the_range():
+    assert lp.cut_label(np.array([2262]), 3.0e14) == "epoch 2262 above the axis (peak 3e+14)"
+    assert lp.cut_label(np.array([1001, 1002, 1050]), 5e15) == "3 epochs above the axis (epochs 1001-1050, peak 5e+15)"
+
+
 def _emulator_csv(path, mse_columns: bool):
     epochs = np.arange(1, 101)
     loss = np.exp(-epochs / 20.0)

@@ -126,6 +126,14 @@ def _set_limits(ax, values: np.ndarray, healthy: np.ndarray) -> float | None:
     return hi if (everything > hi).any() else None
 
 
+def cut_label(cut_epochs: np.ndarray, peak: float) -> str:
+    """The red note of a loss figure: which epochs ran off the top of the axis, and how high."""
+    if len(cut_epochs) == 1:
+        return f"epoch {int(cut_epochs[0])} above the axis (peak {peak:.2g})"
+    return (f"{len(cut_epochs)} epochs above the axis (epochs {int(np.min(cut_epochs))}-{int(np.max(cut_epochs))}, "
+            f"peak {peak:.2g})")
+
+
 def _mark_cut(ax, epochs: np.ndarray, values: np.ndarray, top: float) -> dict:
     """Shade the epochs whose values run off the top of the axis, draw them as triangles on the
     top edge and say how many there were and how high they went."""
@@ -135,7 +143,7 @@ def _mark_cut(ax, epochs: np.ndarray, values: np.ndarray, top: float) -> dict:
         ax.axvspan(start - 0.5, stop + 0.5, color="red", alpha=0.12, lw=0)
     ax.plot(cut, np.full(cut.shape, top), ls="none", marker="^", ms=4, color="red", clip_on=False)
     peak = float(np.nanmax(values[above]))
-    ax.text(0.99, 0.97, f"{cut.size} epochs above the axis (epochs {cut.min()}-{cut.max()}, peak {peak:.2g})",
+    ax.text(0.99, 0.97, cut_label(cut, peak),
             transform=ax.transAxes, ha="right", va="top", fontsize="small", color="red",
             bbox=dict(facecolor="white", edgecolor="none", alpha=0.8))
     return {"top": float(top), "epochs": cut.tolist(), "peak": peak}

@@ -168,6 +168,36 @@ def test_encoder_decoder_loss_matches_formula():
     assert nw.kl_divergence(torch.zeros(4, 3), torch.zeros(4, 3)).item() == 0.0
 
 
+def test_logvar_cap_bounds_the_value_and_passes_the_gradient_through(tmp_path):
+    torch.manual_seed(9)
+    m = nw.EncoderDecoder(latent_dim=4, encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2,
+                          logvar_max=2.0)
+    last = m.encoder[-1]
+    with torch.no_grad():  # the encoder's output is its last layer's bias: raw log-variances known
+        last.weight.zero_()
+        last.bias.copy_(torch.tensor([0.1, -0.2, 0.3, 0.4, -3.0, 1.5, 7.0, 200.0]))
+    v = torch.randn(5, 23)
+    mu, logvar = m.encode(v)
+    assert torch.equal(mu, last.bias[:4].detach().expand(5, 4))
+    assert torch.equal(logvar[0], torch.tensor([-3.0, 1.5, 2.0, 2.0]))  # capped above, untouched below
+    kl = nw.kl_divergence(mu, logvar)
+    assert torch.isfinite(kl)  # exp(200) would overflow float32
+    kl.backward()
+    # straight through: d KL / d raw = 0.5 * (exp(capped) - 1) per sample, mean over the batch, also above the cap
+    expected = 0.5 * (torch.exp(logvar[0].detach()) - 1.0)
+    assert torch.allclose(last.bias.grad[4:], expected)
+    assert expected[3] > 0  # the sample thrown far up is pulled back down
+    # an uncapped twin: the same weights give the same mu and the raw log-variance
+    u = nw.EncoderDecoder(latent_dim=4, encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2)
+    u.load_state_dict(m.state_dict())
+    mu_u, lv_u = u.encode(v)
+    assert torch.equal(mu_u, mu) and torch.equal(lv_u[0], last.bias[4:].detach())
+    assert "logvar_max" not in u.config  # an unbounded model's config is the paper's layout
+    nw.save_model(m, tmp_path / "capped.pt")
+    loaded = nw.load_model(tmp_path / "capped.pt")
+    assert loaded.logvar_max == 2.0 and torch.equal(loaded.encode(v)[1], logvar.detach())
+
+
 def test_reevaluator_converts_scalings():
     torch.manual_seed(8)
     emu = nw.Emulator(hidden=8, layers=3).double()

@@ -534,6 +534,10 @@ def test_hyper_validation():
     for bad in (-1, 2.5, ENCDEC["epochs"] + 1):
         with pytest.raises(ValueError, match="kl_warmup_epochs"):
             tr.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
+    for bad in (0, -1.0, True, "4", float("inf")):
+        with pytest.raises(ValueError, match=f"logvar_max must be null or a number > 0, got {re.escape(repr(bad))}"):
+            tr.check_hyper("encoder_decoder", ENCDEC | {"logvar_max": bad})
+    assert tr.check_hyper("encoder_decoder", ENCDEC)["logvar_max"] is None
     for bad in ({"restarts": 0}, {"restarts": 2}, {"restarts": 2, "restart_epochs": ENCDEC["epochs"]},
                 {"restarts": 2, "restart_epochs": 5, "eval_every": 2}):
         with pytest.raises(ValueError, match="restart"):
@@ -620,6 +624,24 @@ def test_clean_reevaluation_target():
         dc = stages["clean"].batch_loss(idx)[1]
         dn = stages["noisy"].batch_loss(idx)[1]
     assert float(dc["decoder"]) == float(dn["decoder"]) and float(dc["reeval"]) < float(dn["reeval"])
+
+
+def test_a_logvar_cap_never_reached_trains_bit_for_bit_as_none(data, emulator, tmp_path):
+    """The cap changes nothing below it: a training whose log-variances stay under it gives the
+    uncapped run's losses and weights exactly; a cap the training reaches changes the run."""
+    runs = {}
+    for name, cap in (("none", None), ("high", 50.0), ("low", 0.01)):
+        h = ENCDEC | {"epochs": 6} | ({} if cap is None else {"logvar_max": cap})
+        tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"), hyper=h,
+                                 seed=3, device="cpu", progress=False, **_paths(tmp_path, name))
+        model, info = nw.load_model(tmp_path / f"{name}.pt", with_info=True)
+        assert model.logvar_max == cap and info["hyper"]["logvar_max"] == cap
+        runs[name] = (pd.read_csv(tmp_path / f"{name}.csv"), model.state_dict())
+    cols = ["train_loss", "test_loss", "train_kl", "test_kl"]
+    assert runs["high"][0][cols].equals(runs["none"][0][cols])
+    assert all(torch.equal(runs["high"][1][k], v) for k, v in runs["none"][1].items())
+    # the low cap binds: the untrained encoder's log-variances start near 0, above 0.01
+    assert not runs["low"][0]["train_loss"].equals(runs["none"][0]["train_loss"])
 
 
 def test_kl_warmup_ramps_the_training_kl_weight_only(data, emulator, tmp_path):

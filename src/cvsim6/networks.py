@@ -331,18 +331,27 @@ class EncoderDecoder(nn.Module):
     Encoder: standardized v (N, 23) -> [mu (N, latent), log sigma^2 (N, latent)] (first half
     mean, second half log-variance). Decoder: [y_std (N, 16), w (N, latent)] -> v_std (N, 23).
     Defaults (paper): encoder 32 x 6 = 6,246, decoder 64 x 6 = 20,439 parameters, latent 19.
+
+    ``logvar_max`` (None: unbounded, the paper's): the log-variance's value is capped there
+    (sigma^2 <= exp(logvar_max) in the standardized latent space, whose prior has sigma^2 = 1),
+    its gradient passed straight through, so one sample's log-variance that an update throws far
+    up is pulled back down by a finite KL gradient instead of overflowing it. Below the cap the
+    value and gradient are the unbounded ones, bit for bit.
     """
 
     kind = "encoder_decoder"
 
     def __init__(self, n_params: int = N_PARAMETERS, n_outputs: int = N_OUTPUTS, latent_dim: int = 19,
                  encoder_hidden: int = 32, encoder_layers: int = 6, decoder_hidden: int = 64,
-                 decoder_layers: int = 6, activation: str = "silu"):
+                 decoder_layers: int = 6, activation: str = "silu", logvar_max: float | None = None):
         super().__init__()
         self.config = dict(n_params=int(n_params), n_outputs=int(n_outputs), latent_dim=int(latent_dim),
                            encoder_hidden=int(encoder_hidden), encoder_layers=int(encoder_layers),
                            decoder_hidden=int(decoder_hidden), decoder_layers=int(decoder_layers),
                            activation=str(activation))
+        if logvar_max is not None:  # absent from the config of an unbounded model (the published ones)
+            self.config["logvar_max"] = float(logvar_max)
+        self.logvar_max = None if logvar_max is None else float(logvar_max)
         self.latent_dim = int(latent_dim)
         self.encoder = MLP(n_params, 2 * latent_dim, encoder_hidden, encoder_layers, activation)
         self.decoder = MLP(n_outputs + latent_dim, n_params, decoder_hidden, decoder_layers, activation)
@@ -350,9 +359,12 @@ class EncoderDecoder(nn.Module):
         self.y_scaler = Standardizer(n_outputs)
 
     def encode(self, v_std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(mu, logvar)``, each (N, latent)."""
+        """``(mu, logvar)``, each (N, latent); logvar capped at ``logvar_max`` (class docstring)."""
         h = self.encoder(v_std)
-        return h[:, : self.latent_dim], h[:, self.latent_dim:]
+        mu, logvar = h[:, : self.latent_dim], h[:, self.latent_dim:]
+        if self.logvar_max is not None:
+            logvar = logvar - (logvar - logvar.clamp(max=self.logvar_max)).detach()
+        return mu, logvar
 
     def decode(self, y_std: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Standardized parameters (N, 23) from standardized outputs and latent w."""

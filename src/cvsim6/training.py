@@ -51,7 +51,8 @@ the one with the lowest test loss there trains on; see :func:`_train`).
   "clean": with the clean y, as the paper's public code), ``noisy_scaling``, ``kl_warmup_epochs``
   (default 0: the KL weight is ``beta_v`` throughout; k > 0: ``beta_v * e / k`` in epoch e =
   1..k, then ``beta_v``, so the encoder learns to carry information before the KL term presses
-  on it; test losses, and so ``keep_best``, always use the full ``beta_v``).
+  on it; test losses, and so ``keep_best``, always use the full ``beta_v``), ``logvar_max``
+  (default None; a number > 0 caps the encoder's log-variance, see ``EncoderDecoder``).
 * ``noisy_scaling`` (flow, encoder/decoder; default False): standardize the outputs with the
   std of the noisy outputs, ``sqrt(std^2 + (delta*s)^2)`` (the paper's public code), instead of
   the clean training outputs' std.
@@ -123,7 +124,7 @@ HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
         _COMMON_REQUIRED + ("latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                             "decoder_layers", "beta_d", "beta_v", "beta_r"),
         {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu", "reeval_target": "noisy",
-         "noisy_scaling": False, "kl_warmup_epochs": 0},
+         "noisy_scaling": False, "kl_warmup_epochs": 0, "logvar_max": None},
     ),
 }
 _EVAL_CHUNK = 65536
@@ -176,6 +177,10 @@ def check_hyper(stage: str, hyper: dict) -> dict:
                                        or not 0 <= h["kl_warmup_epochs"] <= h["epochs"]):
         raise ValueError(f"encoder_decoder hyperparameter kl_warmup_epochs must be an integer in [0, epochs], "
                          f"got {h['kl_warmup_epochs']!r}")
+    if stage == "encoder_decoder" and h["logvar_max"] is not None and not (_is_real(h["logvar_max"])
+                                                                          and h["logvar_max"] > 0):
+        raise ValueError(f"encoder_decoder hyperparameter logvar_max must be null or a number > 0, "
+                         f"got {h['logvar_max']!r}")
     if stage == "encoder_decoder" and h["reeval_target"] not in ("noisy", "clean"):
         raise ValueError(f"reeval_target must be 'noisy' or 'clean', got {h['reeval_target']!r}")
     return h
@@ -848,7 +853,8 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
         torch.manual_seed(init_seed)
         net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
                                 encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
-                                decoder_layers=h["decoder_layers"], activation=h["activation"])
+                                decoder_layers=h["decoder_layers"], activation=h["activation"],
+                                logvar_max=h["logvar_max"])
         net.x_scaler.fit(v_tr)
         net.y_scaler.fit(y_tr)
         if h["noisy_scaling"]:

@@ -351,7 +351,7 @@ class EncoderDecoder(nn.Module):
                            activation=str(activation))
         if logvar_max is not None:  # absent from the config of an unbounded model (the published ones)
             self.config["logvar_max"] = float(logvar_max)
-        self.logvar_max = None if logvar_max is None else float(logvar_max)
+        self.logvar_max = self.config.get("logvar_max")
         self.latent_dim = int(latent_dim)
         self.encoder = MLP(n_params, 2 * latent_dim, encoder_hidden, encoder_layers, activation)
         self.decoder = MLP(n_outputs + latent_dim, n_params, decoder_hidden, decoder_layers, activation)

@@ -21,7 +21,7 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
                            encoder_layers=d["encoder_layers"], decoder_hidden=d["decoder_hidden"],
                            decoder_layers=d["decoder_layers"])
     counts = {
-        "NN_e": nw.count_parameters(nw.Emulator(e["hidden"], e["layers"])),
+        "NN_e": nw.count_parameters(nw.Emulator(e["hidden"], e["layers"], linear_skip=e.get("linear_skip", False))),
         "NN_v": nw.count_parameters(ed.encoder),
         "NN_d": nw.count_parameters(ed.decoder),
         "NN_f": nw.count_parameters(nw.RealNVP(hidden=f["hidden"], blocks=f["blocks"],
@@ -30,7 +30,8 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
     }
     arch = pd.DataFrame([
         {"Module": "NN_e", "Hidden units": e["hidden"], "Layers": e["layers"], "Blocks": "",
-         "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_e"]},
+         "Activation": "SiLU" + (" + linear skip" if e.get("linear_skip", False) else ""), "BatchNorm": "",
+         "Parameters": counts["NN_e"]},
         {"Module": "NN_v", "Hidden units": d["encoder_hidden"], "Layers": d["encoder_layers"], "Blocks": "",
          "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_v"]},
         {"Module": "NN_d", "Hidden units": d["decoder_hidden"], "Layers": d["decoder_layers"], "Blocks": "",

@@ -117,7 +117,8 @@ _COMMON_OPTIONAL = {"weight_decay": 0.0, "grad_clip": 0.0, "lr_schedule": "step"
 _DTYPES = {"float32": torch.float32, "float64": torch.float64}
 HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
     "emulator": (_COMMON_REQUIRED + ("hidden", "layers"),
-                 {**_COMMON_OPTIONAL, "activation": "silu", "variance_floor": None, "relative_weight": 0.0}),
+                 {**_COMMON_OPTIONAL, "activation": "silu", "variance_floor": None, "relative_weight": 0.0,
+                  "linear_skip": False, "log_inputs": False}),
     "flow": (_COMMON_REQUIRED + ("hidden", "blocks", "layers_per_block", "batchnorm"),
              {**_COMMON_OPTIONAL, "noisy_scaling": False}),
     "encoder_decoder": (
@@ -171,6 +172,9 @@ def check_hyper(stage: str, hyper: dict) -> dict:
     a = h["relative_weight"] if stage == "emulator" else 0.0
     if not (_is_real(a) and 0.0 <= a <= 1.0):
         raise ValueError(f"emulator hyperparameter relative_weight must be a number in [0, 1], got {a!r}")
+    for k in ("linear_skip", "log_inputs") if stage == "emulator" else ():
+        if not isinstance(h[k], bool):
+            raise ValueError(f"emulator hyperparameter {k} must be true or false, got {h[k]!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")
     if stage == "encoder_decoder" and (int(h["kl_warmup_epochs"]) != h["kl_warmup_epochs"]
@@ -783,8 +787,11 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
 
     def make_stage(init_seed: int) -> EmulatorStage:
         torch.manual_seed(init_seed)
-        net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"])
+        log_cols = [j for j in range(v_tr.shape[1]) if v_tr[:, j].min() > 0] if h["log_inputs"] else []
+        net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"], linear_skip=h["linear_skip"],
+                          log_inputs=log_cols)
         net.x_scaler.fit(v_tr)
+        net.fit_features(v_tr)
         net.y_scaler.fit(y_tr)
         net.to(dev, dtype)
         y_tr_std = net.y_scaler.transform(y_tr)

@@ -1,6 +1,8 @@
 """inVAErt networks (cvsim6.networks): sizes, Real-NVP bijectivity and log-det, losses, I/O."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -15,6 +17,60 @@ from cvsim6.registry import N_OUTPUTS, N_PARAMETERS, noise_std
 @pytest.mark.parametrize("hidden, expected", [(60, 24_376), (80, 42_096)])
 def test_emulator_parameter_counts(hidden, expected):
     assert nw.count_parameters(nw.Emulator(hidden=hidden, layers=8)) == expected
+
+
+def test_emulator_linear_skip_starts_as_the_plain_mlp_and_adds_a_linear_map():
+    torch.manual_seed(5)
+    plain = nw.Emulator(hidden=16, layers=3)
+    torch.manual_seed(5)
+    skip = nw.Emulator(hidden=16, layers=3, linear_skip=True)
+    assert nw.count_parameters(skip) == nw.count_parameters(plain) + N_PARAMETERS * N_OUTPUTS + N_OUTPUTS
+    v = torch.randn(30, N_PARAMETERS)
+    with torch.no_grad():
+        assert torch.equal(skip(v), plain(v))  # same MLP draws, skip zero at initialization
+        a, b = torch.randn(N_OUTPUTS, N_PARAMETERS), torch.randn(N_OUTPUTS)
+        skip.skip.weight.copy_(a)
+        skip.skip.bias.copy_(b)
+        assert torch.allclose(skip(v), plain(v) + v @ a.T + b, atol=1e-6)
+        last = skip.net[-1]
+        last.weight.zero_()
+        last.bias.zero_()  # MLP silenced: the emulator is the linear map, exactly
+        assert torch.allclose(skip(v), v @ a.T + b, atol=1e-6)
+    # the skip learns along with the MLP
+    skip.skip.weight.grad = None
+    skip(v).pow(2).sum().backward()
+    assert skip.skip.weight.grad.abs().sum() > 0
+
+
+def test_emulator_log_inputs_features_and_floor():
+    rng = np.random.default_rng(8)
+    v = rng.uniform(0.5, 2.0, size=(200, N_PARAMETERS)) * np.abs(rng.normal(3.0, 1.0, N_PARAMETERS))
+    v[:, 1] -= 20.0  # a negative column stays linear
+    cols = [0, 2, 5]
+    emu = nw.Emulator(hidden=8, layers=2, log_inputs=[5, 0, 2, 2])
+    assert emu.config["log_inputs"] == cols
+    emu.x_scaler.fit(v)
+    emu.fit_features(v)
+    assert np.allclose(emu.log_floor.numpy()[cols], 0.5 * v[:, cols].min(axis=0), rtol=1e-6)
+    f = emu.features(torch.as_tensor(emu.x_scaler.transform(v), dtype=torch.float32)).double().numpy()
+    expected = emu.x_scaler.transform(v)
+    logs = np.log(v[:, cols])
+    expected[:, cols] = (logs - logs.mean(axis=0)) / logs.std(axis=0)
+    assert np.allclose(f, expected, atol=2e-5)
+    # below the floor the logarithm continues as its tangent: continuous, same slope, finite at <= 0
+    c = float(emu.log_floor[0])
+    x = torch.tensor([c * 1.001, c, c * 0.999, 0.0, -c], dtype=torch.float64, requires_grad=True)
+    phys = torch.as_tensor(v[:5].copy())
+    g = emu.double()._log_features(torch.cat([x[:, None], phys[:, 1:]], dim=1))[:, 0]
+    assert torch.allclose(g[:2], torch.log(x[:2]), rtol=0, atol=1e-12)
+    assert g[2].item() == pytest.approx(math.log(c) - 0.001, abs=1e-12)  # tangent, not log: 5e-7 apart
+    assert g[3].item() == pytest.approx(math.log(c) - 1.0) and g[4].item() == pytest.approx(math.log(c) - 2.0)
+    g.sum().backward()
+    assert np.allclose(x.grad.numpy(), [1 / (c * 1.001), 1 / c, 1 / c, 1 / c, 1 / c])
+    with pytest.raises(ValueError, match="log_inputs column 1 has a training value <= 0"):
+        nw.Emulator(hidden=8, layers=2, log_inputs=[1]).fit_features(v)
+    with pytest.raises(ValueError, match="column indices"):
+        nw.Emulator(hidden=8, layers=2, log_inputs=[N_PARAMETERS])
 
 
 def test_encoder_decoder_parameter_counts():
@@ -237,6 +293,7 @@ def _fitted(model):
 
 @pytest.mark.parametrize("make", [
     lambda: nw.Emulator(hidden=16, layers=3),
+    lambda: nw.Emulator(hidden=16, layers=3, linear_skip=True, log_inputs=[0, 4, 22]),
     lambda: nw.RealNVP(hidden=8, blocks=3, batchnorm=True),
     lambda: nw.EncoderDecoder(latent_dim=4, encoder_hidden=8, encoder_layers=3, decoder_hidden=8, decoder_layers=3),
 ])

@@ -624,7 +624,7 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu", with_
     """
     payload = _read_payload(path)
     model = build_model(payload["kind"], payload["config"])
-    dtype = next(iter(payload["state_dict"].values())).dtype
+    dtype = next(t.dtype for t in payload["state_dict"].values() if t.is_floating_point())
     model.to(dtype=dtype)
     model.load_state_dict(payload["state_dict"])
     model.to(map_location).eval()

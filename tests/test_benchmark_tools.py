@@ -4,6 +4,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -139,3 +140,15 @@ def test_batched_copies_compute_each_copys_loss_and_gradient():
                        for k, m in enumerate(eds)])
     torch.testing.assert_close(bc.GroupedEncoderDecoder(eds).loss(v, y, eps, emulator, 1000.0, 1.0, 10.0), own,
                                rtol=1e-5, atol=1e-5)
+
+
+def test_emulator_errors_summary_finds_the_output_that_holds_the_relative_error():
+    ee = _load("emulator_errors")
+    y = np.array([[3.0, 4.0], [300.0, 400.0], [6.0, 8.0]])
+    pred = y.copy()
+    pred[0, 1] += 0.5  # row 0: |e| 0.5 over |y| 5 = 10%
+    pred[1, 0] += 5.0  # row 1: 5 over 500 = 1%
+    s = ee.error_summary(y, pred, ["a", "b"])
+    assert s["worst_%"] == pytest.approx(10.0) and s["median_%"] == pytest.approx(1.0)
+    assert s["p99_%"] == pytest.approx(1.0 + 0.98 * 9.0)  # linear interpolation between 1% and 10%
+    assert s["top_output"] == "b" and s["top_share"] == pytest.approx(0.01 / (0.01 + 0.0001))

@@ -80,6 +80,27 @@ def test_emulator_trains(emulator, data):
     assert info["final_test_loss"] == pytest.approx(err.mean(), rel=1e-3)
 
 
+def test_emulator_with_linear_skip_and_log_inputs(emulator, data, tmp_path):
+    """log_inputs takes every parameter whose training values are positive (all but P_th here),
+    and the skip learns the synthetic data's exactly linear output (Hr, the input Hr) far better
+    than the plain MLP of the same seed and schedule."""
+    res = tr.train_emulator(str(data[0]), str(data[1]), hyper=EMU | {"linear_skip": True, "log_inputs": True},
+                            seed=0, device="cpu", progress=False, **_paths(tmp_path, "emulator"))
+    assert res["completed"]
+    model = nw.load_model(tmp_path / "emulator.pt")
+    v_tr = pd.read_parquet(data[0])[list(PARAMETER_NAMES)].to_numpy()
+    positive = [j for j in range(len(PARAMETER_NAMES)) if v_tr[:, j].min() > 0]
+    assert model.config["log_inputs"] == positive and PARAMETER_NAMES.index("P_th") not in positive
+    assert model.config["linear_skip"] and len(positive) == len(PARAMETER_NAMES) - 1
+    plain = nw.load_model(emulator[0] / "emulator.pt")
+    test = pd.read_parquet(data[1])
+    v, y = test[list(PARAMETER_NAMES)].to_numpy(), test[list(OUTPUT_NAMES)].to_numpy()
+    hr = OUTPUT_NAMES.index("Hr")
+    err_skip = np.abs(model.predict(v)[:, hr] - y[:, hr]).mean()
+    err_plain = np.abs(plain.predict(v)[:, hr] - y[:, hr]).mean()
+    assert err_skip < 0.7 * err_plain  # 0.96 against 1.82 bpm when written
+
+
 def test_flow_trains(data, tmp_path):
     res = tr.train_flow(str(data[0]), str(data[1]), hyper=FLOW, seed=0, noise_level=0.5, device="cpu",
                         progress=False, **_paths(tmp_path, "flow"))
@@ -528,6 +549,12 @@ def test_hyper_validation():
     for bad in (-0.1, 1.5, True, "0.5", float("nan"), None):
         with pytest.raises(ValueError, match=f"relative_weight must be a number in \\[0, 1\\], got {re.escape(repr(bad))}"):
             tr.check_hyper("emulator", EMU | {"relative_weight": bad})
+    for key in ("linear_skip", "log_inputs"):
+        for bad in (1, "true", None):
+            with pytest.raises(ValueError, match=f"{key} must be true or false, got {re.escape(repr(bad))}"):
+                tr.check_hyper("emulator", EMU | {key: bad})
+        with pytest.raises(ValueError, match="unknown"):
+            tr.check_hyper("flow", FLOW | {key: True})
     assert tr.check_hyper("emulator", EMU)["relative_weight"] == 0.0
     with pytest.raises(ValueError, match="unknown"):
         tr.check_hyper("encoder_decoder", ENCDEC | {"relative_weight": 0.5})

@@ -33,9 +33,11 @@ VARIANTS = {"paper": {"linear_skip": False, "log_inputs": False}, "log": {"linea
 def error_summary(y: np.ndarray, y_pred: np.ndarray, names: list[str]) -> dict:
     """Worst / 99th-percentile / median relative l2 error (%) of the rows, and the output with the
     largest share of the mean squared relative error ``mean_i (e_ij / |y_i|)^2`` with that share."""
+    from cvsim6.evaluation import relative_l2_errors
+
     y, y_pred = np.asarray(y, float), np.asarray(y_pred, float)
+    rel = relative_l2_errors(y, y_pred)
     norm = np.linalg.norm(y, axis=1)
-    rel = np.linalg.norm(y_pred - y, axis=1) / norm
     share = (((y_pred - y) / norm[:, None]) ** 2).mean(axis=0)
     share = share / share.sum()
     k = int(np.argmax(share))

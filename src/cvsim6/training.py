@@ -785,9 +785,10 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
 
+    log_cols = [j for j in range(v_tr.shape[1]) if v_tr[:, j].min() > 0] if h["log_inputs"] else []
+
     def make_stage(init_seed: int) -> EmulatorStage:
         torch.manual_seed(init_seed)
-        log_cols = [j for j in range(v_tr.shape[1]) if v_tr[:, j].min() > 0] if h["log_inputs"] else []
         net = nw.Emulator(h["hidden"], h["layers"], activation=h["activation"], linear_skip=h["linear_skip"],
                           log_inputs=log_cols)
         net.x_scaler.fit(v_tr)

@@ -160,6 +160,7 @@ def test_training_stage_end_to_end(trained_run):
     extra = {"NN_e": registry.N_PARAMETERS * registry.N_OUTPUTS + registry.N_OUTPUTS}
     assert all(arch.loc[m, "Parameters"] == arch.loc[m, "Parameters (paper)"] + extra.get(m, 0) for m in arch.index)
     assert arch.loc["NN_e", "Activation"] == "SiLU + linear skip"
+    assert arch.loc["NN_e", "Inputs"] == "logs of the positive parameters, standardized"
     l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
     assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"]
     assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()

@@ -28,15 +28,17 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
                                                layers_per_block=f["layers_per_block"],
                                                batchnorm=bool(f["batchnorm"]))),
     }
+    emulator_inputs = ("logs of the positive parameters, standardized" if e.get("log_inputs", False)
+                       else "parameters, standardized")
     arch = pd.DataFrame([
-        {"Module": "NN_e", "Hidden units": e["hidden"], "Layers": e["layers"], "Blocks": "",
+        {"Module": "NN_e", "Inputs": emulator_inputs, "Hidden units": e["hidden"], "Layers": e["layers"], "Blocks": "",
          "Activation": "SiLU" + (" + linear skip" if e.get("linear_skip", False) else ""), "BatchNorm": "",
          "Parameters": counts["NN_e"]},
-        {"Module": "NN_v", "Hidden units": d["encoder_hidden"], "Layers": d["encoder_layers"], "Blocks": "",
+        {"Module": "NN_v", "Inputs": "parameters, standardized", "Hidden units": d["encoder_hidden"], "Layers": d["encoder_layers"], "Blocks": "",
          "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_v"]},
-        {"Module": "NN_d", "Hidden units": d["decoder_hidden"], "Layers": d["decoder_layers"], "Blocks": "",
+        {"Module": "NN_d", "Inputs": "outputs, standardized, and latent w", "Hidden units": d["decoder_hidden"], "Layers": d["decoder_layers"], "Blocks": "",
          "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_d"]},
-        {"Module": "NN_f", "Hidden units": f["hidden"], "Layers": f["layers_per_block"], "Blocks": f["blocks"],
+        {"Module": "NN_f", "Inputs": "outputs, standardized", "Hidden units": f["hidden"], "Layers": f["layers_per_block"], "Blocks": f["blocks"],
          "Activation": "Tanh (scale), ReLU (translation)", "BatchNorm": bool(f["batchnorm"]),
          "Parameters": counts["NN_f"]},
     ])

@@ -272,6 +272,62 @@ def test_reevaluator_converts_scalings():
     assert torch.equal(nw.make_reevaluator(emu, m)(vs), emu(vs))
 
 
+def test_log_standardizer_round_trip_positivity_and_errors(tmp_path):
+    """Log columns standardized as logarithms (unit std of log v), the others as they are; inverse
+    undoes transform (numpy and torch); any decoded value is positive in a log column; a value
+    <= 0 there is refused with its column named."""
+    rng = np.random.default_rng(3)
+    v = np.exp(rng.normal(0.0, 0.5, (400, 23))) * 10.0
+    v[:, 1] = rng.normal(-4.0, 1.0, 400)  # a parameter that may be negative (P_th)
+    cols = [j for j in range(23) if j != 1]
+    s = nw.LogStandardizer(23, cols).double().fit(v)
+    u = s.transform(v)
+    assert np.allclose(u.mean(0), 0.0, atol=1e-12) and np.allclose(u.std(0), 1.0)
+    assert np.allclose(s.mean.double().numpy()[cols], np.log(v[:, cols]).mean(0))
+    assert np.allclose(s.mean.double().numpy()[1], v[:, 1].mean())
+    assert np.allclose(s.inverse(u), v, rtol=1e-12)
+    t = torch.as_tensor(v)
+    assert torch.allclose(s.inverse(s.transform(t)), t, rtol=1e-12)
+    far = s.inverse(rng.normal(0.0, 10.0, (1000, 23)))
+    assert (far[:, cols] > 0).all() and (far[:, 1] < 0).any()
+    bad = v[:3].copy()
+    bad[2, 7] = -0.1
+    with pytest.raises(ValueError, match="column 7 .* <= 0"):
+        s.transform(bad)
+    with pytest.raises(ValueError, match="column 7"):
+        nw.LogStandardizer(23, cols).fit(bad)
+    with pytest.raises(ValueError, match="log_columns"):
+        nw.LogStandardizer(23, [23])
+    # an encoder/decoder with log_params saves and loads it, and decodes positive parameters
+    m = nw.EncoderDecoder(latent_dim=2, encoder_hidden=4, encoder_layers=2, decoder_hidden=4, decoder_layers=2,
+                          log_params=cols).double()
+    m.x_scaler.fit(v)
+    m.y_scaler.fit(rng.normal(0.0, 1.0, (400, 16)))
+    nw.save_model(m, tmp_path / "m.pt")
+    back = nw.load_model(tmp_path / "m.pt")
+    assert isinstance(back.x_scaler, nw.LogStandardizer) and back.config["log_params"] == cols
+    y, w = rng.normal(0.0, 3.0, (50, 16)), rng.normal(0.0, 5.0, (50, 2))
+    assert np.array_equal(back.invert(y, w), m.invert(y, w)) and (m.invert(y, w)[:, cols] > 0).all()
+    assert "log_params" not in nw.EncoderDecoder().config  # the paper's (and the published) models
+
+
+def test_reevaluator_through_log_parameters():
+    """With log_params the re-evaluator maps through physical units: exp, then the emulator's own
+    standardization (it equals predict on the physical parameters)."""
+    torch.manual_seed(8)
+    emu = nw.Emulator(hidden=8, layers=3).double()
+    rng = np.random.default_rng(2)
+    v, y = np.exp(rng.normal(1.0, 0.4, (60, 23))), rng.normal(-1, 4, (60, 16))
+    emu.x_scaler.fit(v)
+    emu.y_scaler.fit(y)
+    m = nw.EncoderDecoder(latent_dim=2, encoder_hidden=4, encoder_layers=2, decoder_hidden=4, decoder_layers=2,
+                          log_params=list(range(23))).double()
+    m.x_scaler.fit(v)
+    m.y_scaler.fit(y + 0.5)
+    got = m.y_scaler.inverse(nw.make_reevaluator(emu, m)(m.x_scaler.transform(torch.as_tensor(v[:7]))))
+    assert torch.allclose(got, torch.as_tensor(emu.predict(v[:7])), atol=1e-10)
+
+
 def test_draw_noise_std():
     g = torch.Generator().manual_seed(9)
     eta = nw.draw_noise(100_000, 0.5, g)

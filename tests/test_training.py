@@ -133,6 +133,29 @@ def test_encoder_decoder_trains(data, emulator, tmp_path):
     assert isinstance(model, nw.EncoderDecoder)
 
 
+def test_encoder_decoder_with_log_parameters(data, emulator, tmp_path):
+    """log_parameters: the model standardizes the logarithm of every parameter positive in the
+    training data (all but P_th); its losses fall, and no latent draw, however far out, decodes a
+    parameter <= 0 there."""
+    res = tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                   hyper=ENCDEC | {"log_parameters": True}, seed=0, noise_level=0.25,
+                                   device="cpu", progress=False, **_paths(tmp_path, "encdec"))
+    assert res["completed"]
+    df = pd.read_csv(tmp_path / "encdec.csv")
+    assert df["test_decoder"].iloc[-1] < 0.6 * df["test_decoder"].iloc[0]
+    assert df["test_reeval"].iloc[-1] < df["test_reeval"].iloc[0]
+    model = nw.load_model(tmp_path / "encdec.pt")
+    positive = [j for j in range(len(PARAMETER_NAMES)) if j != PARAMETER_NAMES.index("P_th")]
+    assert model.config["log_params"] == positive and isinstance(model.x_scaler, nw.LogStandardizer)
+    test = pd.read_parquet(data[1])
+    y = test[list(OUTPUT_NAMES)].to_numpy()
+    w = np.random.default_rng(0).normal(0.0, 4.0, (len(y), ENCDEC["latent_dim"]))
+    v = model.invert(y, w)
+    assert np.isfinite(v).all() and (v[:, positive] > 0).all()
+    with pytest.raises(ValueError, match="log_parameters must be true or false"):
+        tr.check_hyper("encoder_decoder", ENCDEC | {"log_parameters": "yes"})
+
+
 @pytest.mark.parametrize("config_file", ["config.yaml", "paper.yaml"])
 def test_configured_loss_weights_keep_the_latent_space_alive(config_file, data, emulator, tmp_path):
     """The shipped weights must leave information in w: the synthetic map has 7 more inputs

@@ -30,13 +30,16 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
     }
     emulator_inputs = ("logs of the positive parameters, standardized" if e.get("log_inputs", False)
                        else "parameters, standardized")
+    logp = d.get("log_parameters", False)
+    encoder_inputs = "logs of the positive parameters, standardized" if logp else "parameters, standardized"
+    decoder_outputs = " (gives the logs of the positive parameters)" if logp else ""
     arch = pd.DataFrame([
         {"Module": "NN_e", "Inputs": emulator_inputs, "Hidden units": e["hidden"], "Layers": e["layers"], "Blocks": "",
          "Activation": "SiLU" + (" + linear skip" if e.get("linear_skip", False) else ""), "BatchNorm": "",
          "Parameters": counts["NN_e"]},
-        {"Module": "NN_v", "Inputs": "parameters, standardized", "Hidden units": d["encoder_hidden"], "Layers": d["encoder_layers"], "Blocks": "",
+        {"Module": "NN_v", "Inputs": encoder_inputs, "Hidden units": d["encoder_hidden"], "Layers": d["encoder_layers"], "Blocks": "",
          "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_v"]},
-        {"Module": "NN_d", "Inputs": "outputs, standardized, and latent w", "Hidden units": d["decoder_hidden"], "Layers": d["decoder_layers"], "Blocks": "",
+        {"Module": "NN_d", "Inputs": "outputs, standardized, and latent w" + decoder_outputs, "Hidden units": d["decoder_hidden"], "Layers": d["decoder_layers"], "Blocks": "",
          "Activation": "SiLU", "BatchNorm": "", "Parameters": counts["NN_d"]},
         {"Module": "NN_f", "Inputs": "outputs, standardized", "Hidden units": f["hidden"], "Layers": f["layers_per_block"], "Blocks": f["blocks"],
          "Activation": "Tanh (scale), ReLU (translation)", "BatchNorm": bool(f["batchnorm"]),

@@ -123,6 +123,63 @@ class Standardizer(nn.Module):
         return np.asarray(x, dtype=np.float64) * self.std.double().cpu().numpy() + self.mean.double().cpu().numpy()
 
 
+class LogStandardizer(Standardizer):
+    """Standardization of ``log x`` in the columns ``log_columns`` and of ``x`` in the others.
+
+    ``transform`` maps physical values to the standardized features, ``inverse`` back (``exp``
+    in the log columns), so a network whose outputs are read through ``inverse`` can only give
+    positive values there. ``fit`` and ``transform`` raise ``ValueError`` naming a log column
+    with a value <= 0 (its logarithm is undefined). Same numpy/tensor handling as
+    :class:`Standardizer`.
+    """
+
+    def __init__(self, dim: int, log_columns: list[int] | tuple[int, ...]):
+        super().__init__(dim)
+        cols = sorted({int(i) for i in log_columns})
+        if not cols or any(not 0 <= i < dim for i in cols):
+            raise ValueError(f"log_columns must be non-empty column indices in [0, {dim}), got {list(log_columns)}")
+        mask = torch.zeros(dim, dtype=torch.bool)
+        mask[cols] = True
+        self.register_buffer("log_mask", mask)
+
+    def _check_positive(self, x) -> None:
+        m = self.log_mask.cpu().numpy()
+        vals = np.asarray(x.detach().cpu() if isinstance(x, torch.Tensor) else x, dtype=np.float64)
+        vals = vals.reshape(-1, m.size)[:, m]
+        bad = ~(vals > 0)  # NaN is bad too
+        if bad.any():
+            k = int(np.argmax(bad.any(axis=0)))
+            raise ValueError(f"column {int(np.flatnonzero(m)[k])} is standardized as a logarithm but has "
+                             f"a value <= 0 or NaN ({vals[bad[:, k], k][0]!r})")
+
+    def _log(self, x):
+        self._check_positive(x)
+        if isinstance(x, torch.Tensor):
+            return torch.where(self.log_mask.to(x.device), torch.log(torch.where(self.log_mask.to(x.device), x, 1.0)), x)
+        x = np.asarray(x, dtype=np.float64)
+        m = self.log_mask.cpu().numpy()
+        return np.where(m, np.log(np.where(m, x, 1.0)), x)
+
+    @torch.no_grad()
+    def fit(self, data: np.ndarray | torch.Tensor) -> "LogStandardizer":
+        """Mean and std of the features (log columns as logarithms) of ``data`` (N, dim)."""
+        x = np.asarray(data.detach().cpu() if isinstance(data, torch.Tensor) else data, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != self.mean.numel():
+            raise ValueError(f"expected (N, {self.mean.numel()}) data, got {x.shape}")
+        return super().fit(self._log(x))
+
+    def transform(self, x):
+        """Physical -> standardized features."""
+        return super().transform(self._log(x))
+
+    def inverse(self, x):
+        """Standardized features -> physical (``exp`` in the log columns)."""
+        u = super().inverse(x)
+        if isinstance(u, torch.Tensor):
+            return torch.where(self.log_mask.to(u.device), torch.exp(u), u)
+        return np.where(self.log_mask.cpu().numpy(), np.exp(u), u)
+
+
 def _module_dtype_device(module: nn.Module) -> tuple[torch.dtype, torch.device]:
     p = next(module.parameters())
     return p.dtype, p.device
@@ -397,6 +454,10 @@ class EncoderDecoder(nn.Module):
     mean, second half log-variance). Decoder: [y_std (N, 16), w (N, latent)] -> v_std (N, 23).
     Defaults (paper): encoder 32 x 6 = 6,246, decoder 64 x 6 = 20,439 parameters, latent 19.
 
+    ``log_params`` (column indices; default none, the paper's): the model sees and decodes those
+    parameters as standardized logarithms (:class:`LogStandardizer`), so every decoded set is
+    positive there, however far the decoder extrapolates; the others are standardized as they are.
+
     ``logvar_max`` (None: unbounded, the paper's): the log-variance's value is capped there
     (sigma^2 <= exp(logvar_max) in the standardized latent space, whose prior has sigma^2 = 1),
     its gradient passed straight through, so one sample's log-variance that an update throws far
@@ -408,7 +469,8 @@ class EncoderDecoder(nn.Module):
 
     def __init__(self, n_params: int = N_PARAMETERS, n_outputs: int = N_OUTPUTS, latent_dim: int = 19,
                  encoder_hidden: int = 32, encoder_layers: int = 6, decoder_hidden: int = 64,
-                 decoder_layers: int = 6, activation: str = "silu", logvar_max: float | None = None):
+                 decoder_layers: int = 6, activation: str = "silu", logvar_max: float | None = None,
+                 log_params: list[int] | tuple[int, ...] = ()):
         super().__init__()
         self.config = dict(n_params=int(n_params), n_outputs=int(n_outputs), latent_dim=int(latent_dim),
                            encoder_hidden=int(encoder_hidden), encoder_layers=int(encoder_layers),
@@ -420,7 +482,10 @@ class EncoderDecoder(nn.Module):
         self.latent_dim = int(latent_dim)
         self.encoder = MLP(n_params, 2 * latent_dim, encoder_hidden, encoder_layers, activation)
         self.decoder = MLP(n_outputs + latent_dim, n_params, decoder_hidden, decoder_layers, activation)
-        self.x_scaler = Standardizer(n_params)
+        log_params = sorted({int(i) for i in log_params})
+        if log_params:  # absent from the config of a model without (the published ones)
+            self.config["log_params"] = log_params
+        self.x_scaler = LogStandardizer(n_params, log_params) if log_params else Standardizer(n_params)
         self.y_scaler = Standardizer(n_outputs)
 
     def encode(self, v_std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -524,7 +589,8 @@ def make_reevaluator(emulator: Emulator, model: EncoderDecoder) -> Callable[[tor
     """``v_std`` (model's x scaling) -> emulator prediction in the model's y scaling.
 
     Converts between the two models' standardizations with exact affine maps (identity when
-    both were fitted on the same training data). The emulator is not modified; freeze it
+    both were fitted on the same training data); through physical units when the model
+    standardizes logarithms (``log_params``). The emulator is not modified; freeze it
     (``requires_grad_(False)``, ``eval()``) before training.
     """
     with torch.no_grad():
@@ -533,6 +599,13 @@ def make_reevaluator(emulator: Emulator, model: EncoderDecoder) -> Callable[[tor
         ya = emulator.y_scaler.std.to(model.y_scaler.std) / model.y_scaler.std
         yb = (emulator.y_scaler.mean.to(model.y_scaler.mean) - model.y_scaler.mean) / model.y_scaler.std
         identity = bool(torch.all(xa == 1) and torch.all(xb == 0) and torch.all(ya == 1) and torch.all(yb == 0))
+
+    if isinstance(model.x_scaler, LogStandardizer):
+        def reevaluate_log(v_std: torch.Tensor) -> torch.Tensor:
+            v = model.x_scaler.inverse(v_std)
+            emu_std = (v - emulator.x_scaler.mean.to(v)) / emulator.x_scaler.std.to(v)
+            return emulator(emu_std) * ya.to(v_std) + yb.to(v_std)
+        return reevaluate_log
 
     def reevaluate(v_std: torch.Tensor) -> torch.Tensor:
         if identity:

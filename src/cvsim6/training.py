@@ -52,7 +52,11 @@ the one with the lowest test loss there trains on; see :func:`_train`).
   (default 0: the KL weight is ``beta_v`` throughout; k > 0: ``beta_v * e / k`` in epoch e =
   1..k, then ``beta_v``, so the encoder learns to carry information before the KL term presses
   on it; test losses, and so ``keep_best``, always use the full ``beta_v``), ``logvar_max``
-  (default None; a number > 0 caps the encoder's log-variance, see ``EncoderDecoder``).
+  (default None; a number > 0 caps the encoder's log-variance, see ``EncoderDecoder``),
+  ``log_parameters`` (default False, the paper's; True: the encoder sees and the decoder gives
+  the logarithm of every parameter whose training values are all positive, standardized, so
+  that no decoded set has a compliance, resistance or volume <= 0; the decoder's squared error
+  is then measured on those logarithms).
 * ``noisy_scaling`` (flow, encoder/decoder; default False): standardize the outputs with the
   std of the noisy outputs, ``sqrt(std^2 + (delta*s)^2)`` (the paper's public code), instead of
   the clean training outputs' std.
@@ -125,7 +129,7 @@ HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
         _COMMON_REQUIRED + ("latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                             "decoder_layers", "beta_d", "beta_v", "beta_r"),
         {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu", "reeval_target": "noisy",
-         "noisy_scaling": False, "kl_warmup_epochs": 0, "logvar_max": None},
+         "noisy_scaling": False, "kl_warmup_epochs": 0, "logvar_max": None, "log_parameters": False},
     ),
 }
 _EVAL_CHUNK = 65536
@@ -172,9 +176,9 @@ def check_hyper(stage: str, hyper: dict) -> dict:
     a = h["relative_weight"] if stage == "emulator" else 0.0
     if not (_is_real(a) and 0.0 <= a <= 1.0):
         raise ValueError(f"emulator hyperparameter relative_weight must be a number in [0, 1], got {a!r}")
-    for k in ("linear_skip", "log_inputs") if stage == "emulator" else ():
+    for k in {"emulator": ("linear_skip", "log_inputs"), "encoder_decoder": ("log_parameters",)}.get(stage, ()):
         if not isinstance(h[k], bool):
-            raise ValueError(f"emulator hyperparameter {k} must be true or false, got {h[k]!r}")
+            raise ValueError(f"{stage} hyperparameter {k} must be true or false, got {h[k]!r}")
     if stage == "encoder_decoder" and h["reduction"] not in ("sum", "mse"):
         raise ValueError(f"reduction must be 'sum' or 'mse', got {h['reduction']!r}")
     if stage == "encoder_decoder" and (int(h["kl_warmup_epochs"]) != h["kl_warmup_epochs"]
@@ -769,6 +773,12 @@ def _fingerprint(**items) -> str:
 
 
 # ----------------------------------------------------------------------------- entry points
+def positive_columns(v: np.ndarray) -> list[int]:
+    """Indices of the columns of ``v`` (N, n) whose values are all > 0: the parameters the
+    ``log_inputs`` / ``log_parameters`` options take logarithms of (in CVSim-6 all but P_th)."""
+    return [j for j in range(v.shape[1]) if v[:, j].min() > 0]
+
+
 def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, seed: int,
                    device: str = "auto", threads: int = 1, checkpoint: str | None = None,
                    max_epochs_this_run: int | None = None, checkpoint_every: int = 50,
@@ -785,7 +795,7 @@ def train_emulator(train: str, test: str, model: str, losses: str, hyper: dict, 
     v_tr, y_tr = load_split(train)
     v_te, y_te = load_split(test)
 
-    log_cols = [j for j in range(v_tr.shape[1]) if v_tr[:, j].min() > 0] if h["log_inputs"] else []
+    log_cols = positive_columns(v_tr) if h["log_inputs"] else []
 
     def make_stage(init_seed: int) -> EmulatorStage:
         torch.manual_seed(init_seed)
@@ -856,13 +866,14 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
     if not isinstance(emu, nw.Emulator):
         raise ValueError(f"{emulator}: expected an emulator model, got {type(emu).__name__}")
     emu.to(dtype=dtype).eval().requires_grad_(False)
+    log_cols = positive_columns(v_tr) if h["log_parameters"] else []
 
     def make_stage(init_seed: int) -> EncoderDecoderStage:
         torch.manual_seed(init_seed)
         net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
                                 encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
                                 decoder_layers=h["decoder_layers"], activation=h["activation"],
-                                logvar_max=h["logvar_max"])
+                                logvar_max=h["logvar_max"], log_params=log_cols)
         net.x_scaler.fit(v_tr)
         net.y_scaler.fit(y_tr)
         if h["noisy_scaling"]:

@@ -134,6 +134,9 @@ def test_training_stage_end_to_end(trained_run):
     # models load, with the architecture of the config and the noise level of the file name
     ed, info = networks.load_model(work / "results/models/ehr/encoder_decoder_delta0.5.pt", with_info=True)
     assert info["noise_level"] == 0.5 and info["stage"] == "encoder_decoder"
+    # log_parameters in the smoke config: every parameter but P_th decoded as a logarithm
+    assert isinstance(ed.x_scaler, networks.LogStandardizer)
+    assert ed.config["log_params"] == [j for j in range(registry.N_PARAMETERS) if registry.PARAMETER_NAMES[j] != "P_th"]
     flow, info = networks.load_model(work / "results/models/ehr/flow_delta2.pt", with_info=True)
     assert info["noise_level"] == 2.0 and networks.count_parameters(flow) == 20280
     # per-epoch losses of every stage, as many rows as configured epochs
@@ -161,6 +164,8 @@ def test_training_stage_end_to_end(trained_run):
     assert all(arch.loc[m, "Parameters"] == arch.loc[m, "Parameters (paper)"] + extra.get(m, 0) for m in arch.index)
     assert arch.loc["NN_e", "Activation"] == "SiLU + linear skip"
     assert arch.loc["NN_e", "Inputs"] == "logs of the positive parameters, standardized"
+    assert arch.loc["NN_v", "Inputs"] == "logs of the positive parameters, standardized"
+    assert arch.loc["NN_d", "Inputs"].endswith("(gives the logs of the positive parameters)")
     l2 = json.loads((work / "results/training/ehr/emulator_l2_errors.json").read_text())
     assert l2["n"] == 40 and 0 < l2["mean"] <= l2["max"]
     assert (work / "results/training/structural/flow_delta0_marginals.pdf").is_file()

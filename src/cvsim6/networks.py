@@ -593,24 +593,24 @@ def make_reevaluator(emulator: Emulator, model: EncoderDecoder) -> Callable[[tor
     standardizes logarithms (``log_params``). The emulator is not modified; freeze it
     (``requires_grad_(False)``, ``eval()``) before training.
     """
+    log_params = isinstance(model.x_scaler, LogStandardizer)
     with torch.no_grad():
-        xa = model.x_scaler.std / emulator.x_scaler.std.to(model.x_scaler.std)
-        xb = (model.x_scaler.mean - emulator.x_scaler.mean.to(model.x_scaler.mean)) / emulator.x_scaler.std.to(model.x_scaler.std)
         ya = emulator.y_scaler.std.to(model.y_scaler.std) / model.y_scaler.std
         yb = (emulator.y_scaler.mean.to(model.y_scaler.mean) - model.y_scaler.mean) / model.y_scaler.std
-        identity = bool(torch.all(xa == 1) and torch.all(xb == 0) and torch.all(ya == 1) and torch.all(yb == 0))
-
-    if isinstance(model.x_scaler, LogStandardizer):
-        def reevaluate_log(v_std: torch.Tensor) -> torch.Tensor:
-            v = model.x_scaler.inverse(v_std)
-            emu_std = (v - emulator.x_scaler.mean.to(v)) / emulator.x_scaler.std.to(v)
-            return emulator(emu_std) * ya.to(v_std) + yb.to(v_std)
-        return reevaluate_log
+        if not log_params:
+            xa = model.x_scaler.std / emulator.x_scaler.std.to(model.x_scaler.std)
+            xb = (model.x_scaler.mean - emulator.x_scaler.mean.to(model.x_scaler.mean)) / emulator.x_scaler.std.to(model.x_scaler.std)
+        identity = not log_params and bool(torch.all(xa == 1) and torch.all(xb == 0) and torch.all(ya == 1)
+                                           and torch.all(yb == 0))
 
     def reevaluate(v_std: torch.Tensor) -> torch.Tensor:
         if identity:
             return emulator(v_std)
-        return emulator(v_std * xa.to(v_std) + xb.to(v_std)) * ya.to(v_std) + yb.to(v_std)
+        if log_params:
+            u = emulator.x_scaler.transform(model.x_scaler.inverse(v_std))
+        else:
+            u = v_std * xa.to(v_std) + xb.to(v_std)
+        return emulator(u) * ya.to(v_std) + yb.to(v_std)
 
     return reevaluate
 

@@ -224,6 +224,34 @@ def test_encoder_decoder_loss_matches_formula():
     assert nw.kl_divergence(torch.zeros(4, 3), torch.zeros(4, 3)).item() == 0.0
 
 
+def test_prior_reevaluation_term_matches_formula_and_is_off_at_weight_zero():
+    """beta_prior > 0 adds beta_prior * mean ||y_target - NN_e(NN_d(y', w_prior))||^2 to the
+    paper's loss (one batch of 2N rows decoded, same values as decoding each half); at weight
+    0 the loss is the paper's to the last bit."""
+    torch.manual_seed(8)
+    m = nw.EncoderDecoder(latent_dim=3, encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2)
+    emu = nw.Emulator(hidden=8, layers=2)
+    v, y, yc, eps, wp = torch.randn(10, 23), torch.randn(10, 16), torch.randn(10, 16), torch.randn(10, 3), \
+        3.0 * torch.randn(10, 3)
+    re = nw.make_reevaluator(emu, m)
+    base, base_parts = nw.encoder_decoder_loss(m, v, y, eps, re, 1.5, 7.0, 3.0, "mse", y_target_std=yc)
+    total, parts = nw.encoder_decoder_loss(m, v, y, eps, re, 1.5, 7.0, 3.0, "mse", y_target_std=yc,
+                                           w_prior=wp, beta_prior=4.0)
+    prior = ((yc - emu(m.decoder(torch.cat([y, wp], 1)))) ** 2).mean()
+    assert torch.allclose(parts["prior_reeval"], prior) and prior > 0
+    assert torch.allclose(total, base + 4.0 * prior)
+    for k in ("decoder", "kl", "reeval"):
+        assert torch.allclose(parts[k], base_parts[k])
+    off, off_parts = nw.encoder_decoder_loss(m, v, y, eps, re, 1.5, 7.0, 3.0, "mse", y_target_std=yc,
+                                             w_prior=wp, beta_prior=0.0)
+    assert torch.equal(off, base) and "prior_reeval" not in off_parts
+    # the gradient reaches the decoder through the prior half
+    m.zero_grad()
+    nw.encoder_decoder_loss(m, v, y, eps, re, 0.0, 0.0, 0.0, "mse", w_prior=wp, beta_prior=1.0)[0].backward()
+    assert m.decoder[0].weight.grad.abs().sum() > 0 and all(
+        p.grad is None or p.grad.abs().sum() == 0 for p in m.encoder.parameters())
+
+
 def test_logvar_cap_bounds_the_value_and_passes_the_gradient_through(tmp_path):
     torch.manual_seed(9)
     m = nw.EncoderDecoder(latent_dim=4, encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2,

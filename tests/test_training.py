@@ -156,6 +156,25 @@ def test_encoder_decoder_with_log_parameters(data, emulator, tmp_path):
         tr.check_hyper("encoder_decoder", ENCDEC | {"log_parameters": "yes"})
 
 
+def test_encoder_decoder_with_prior_reevaluation(data, emulator, tmp_path):
+    """beta_prior: the losses CSV gains the prior-draw re-evaluation columns, the test total is
+    the weighted sum of its four terms, and the term falls while training; a weight that is
+    not a number >= 0 is refused by name."""
+    hyper = ENCDEC | {"beta_prior": 5.0}
+    res = tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                                   hyper=hyper, seed=0, noise_level=0.25, device="cpu", progress=False,
+                                   **_paths(tmp_path, "encdec"))
+    assert res["completed"]
+    df = pd.read_csv(tmp_path / "encdec.csv")
+    total = (ENCDEC["beta_d"] * df["test_decoder"] + ENCDEC["beta_v"] * df["test_kl"]
+             + ENCDEC["beta_r"] * df["test_reeval"] + 5.0 * df["test_prior_reeval"])
+    assert np.allclose(total, df["test_loss"], rtol=1e-5)
+    assert df["test_prior_reeval"].iloc[-1] < 0.5 * df["test_prior_reeval"].iloc[0]
+    for bad in (-1.0, True, "1", float("nan")):
+        with pytest.raises(ValueError, match="beta_prior must be a number >= 0"):
+            tr.check_hyper("encoder_decoder", ENCDEC | {"beta_prior": bad})
+
+
 @pytest.mark.parametrize("config_file", ["config.yaml", "paper.yaml"])
 def test_configured_loss_weights_keep_the_latent_space_alive(config_file, data, emulator, tmp_path):
     """The shipped weights must leave information in w: the synthetic map has 7 more inputs

@@ -178,6 +178,11 @@ def test_training_stage_end_to_end(trained_run):
     assert "output variances floored at 0.01" in sched.loc["NN_e", "Schedule"]
     assert "floored" not in sched.loc["NN_f", "Schedule"]
     assert "KL weight ramped up over the first 1 epoch" in sched.loc["NN_v + NN_d", "Schedule"]
+    assert "re-evaluation also at prior draws w ~ N(0, I), weight 10" in sched.loc["NN_v + NN_d", "Schedule"]
+    # the smoke config's structural encoder/decoder weights the prior-draw re-evaluation (the EHR ones do not)
+    ed = pd.read_csv(work / "results/training/structural/encoder_decoder_delta0_losses.csv")
+    assert ed["test_prior_reeval"].notna().any() and (ed["test_prior_reeval"].dropna() > 0).all()
+    assert "test_prior_reeval" not in pd.read_csv(work / "results/training/ehr/encoder_decoder_delta0.5_losses.csv")
     val = pd.read_csv(work / "results/tables/structural_emulator_validation.csv")
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val
     # the loss figures are drawn by a rule of their own: a change of the plotting code redraws

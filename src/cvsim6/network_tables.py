@@ -56,6 +56,8 @@ def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFra
         if h.get("kl_warmup_epochs"):
             k = h["kl_warmup_epochs"]
             schedule += f"; KL weight ramped up over the first {k} epoch{'s' if k != 1 else ''}"
+        if h.get("beta_prior"):
+            schedule += f"; re-evaluation also at prior draws w ~ N(0, I), weight {h['beta_prior']:g}"
         rows.append({"Module": name, "Minibatch": h["batch_size"], "Initial lr": h["lr"],
                      "Epochs": h["epochs"], "Schedule": schedule,
                      "Weight decay": h.get("weight_decay", 0.0)})

@@ -561,7 +561,8 @@ def squared_error(a: torch.Tensor, b: torch.Tensor, reduction: str = "sum") -> t
 def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torch.Tensor,
                          eps: torch.Tensor, reevaluate: Callable[[torch.Tensor], torch.Tensor] | None,
                          beta_d: float, beta_v: float, beta_r: float, reduction: str = "sum",
-                         y_target_std: torch.Tensor | None = None):
+                         y_target_std: torch.Tensor | None = None, w_prior: torch.Tensor | None = None,
+                         beta_prior: float = 0.0):
     """Encoder/decoder loss of the paper, means over the minibatch.
 
     ``beta_d * E||v - NN_d(y', w)||^2 + beta_v * E[1/2 sum_k(mu^2 + sigma^2 - log sigma^2 - 1)]
@@ -569,20 +570,43 @@ def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torc
     (noisy) standardized y'; ``y_target_std`` replaces y' as the re-evaluation target when
     given (the clean y, as in the paper's public code); ``eps`` (N, latent) standard normal; ``reevaluate`` maps decoded
     standardized v to standardized y through the frozen emulator (None or beta_r == 0 skips it).
-    ``reduction`` applies to the two squared-error terms (see :func:`squared_error`); the KL
-    term is always summed over latent dimensions. Returns ``(total, parts)`` where ``parts`` has
-    the unweighted ``decoder``, ``kl`` and ``reeval`` terms (detached tensors).
+    ``reduction`` applies to the squared-error terms (see :func:`squared_error`); the KL
+    term is always summed over latent dimensions.
+
+    Not in the paper: with ``w_prior`` (N, latent; draws from the prior N(0, I), the latent
+    draws an inversion decodes) and ``beta_prior`` > 0, ``+ beta_prior * E||y' -
+    NN_e(NN_d(y', w_prior))||^2`` (same target as the re-evaluation term). Both halves are
+    decoded and re-evaluated as one batch of 2N rows.
+
+    Returns ``(total, parts)`` where ``parts`` has the unweighted ``decoder``, ``kl`` and
+    ``reeval`` terms, and ``prior_reeval`` when that term is on (detached tensors).
     """
-    v_hat, mu, logvar = model(v_std, y_std, eps)
+    prior = w_prior is not None and beta_prior != 0 and reevaluate is not None
+    if prior:
+        mu, logvar = model.encode(v_std)
+        w = mu + eps * torch.exp(0.5 * logvar)
+        decoded = model.decode(torch.cat((y_std, y_std)), torch.cat((w, w_prior.to(w))))
+        v_hat = decoded[: len(v_std)]
+    else:
+        v_hat, mu, logvar = model(v_std, y_std, eps)
     dec = squared_error(v_hat, v_std, reduction)
     kl = kl_divergence(mu, logvar)
     total = beta_d * dec + beta_v * kl
-    if reevaluate is not None and beta_r != 0:
-        rec = squared_error(reevaluate(v_hat), y_std if y_target_std is None else y_target_std, reduction)
+    target = y_std if y_target_std is None else y_target_std
+    parts = {"decoder": dec.detach(), "kl": kl.detach()}
+    if prior:
+        y_hat = reevaluate(decoded)
+        rec = squared_error(y_hat[: len(v_std)], target, reduction)
+        rec_prior = squared_error(y_hat[len(v_std):], target, reduction)
+        total = total + beta_r * rec + beta_prior * rec_prior
+        parts["prior_reeval"] = rec_prior.detach()
+    elif reevaluate is not None and beta_r != 0:
+        rec = squared_error(reevaluate(v_hat), target, reduction)
         total = total + beta_r * rec
     else:
         rec = torch.zeros((), device=v_std.device, dtype=v_std.dtype)
-    return total, {"decoder": dec.detach(), "kl": kl.detach(), "reeval": rec.detach()}
+    parts["reeval"] = rec.detach()
+    return total, parts
 
 
 def make_reevaluator(emulator: Emulator, model: EncoderDecoder) -> Callable[[torch.Tensor], torch.Tensor]:

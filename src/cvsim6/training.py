@@ -56,7 +56,10 @@ the one with the lowest test loss there trains on; see :func:`_train`).
   ``log_parameters`` (default False, the paper's; True: the encoder sees and the decoder gives
   the logarithm of every parameter whose training values are all positive, standardized, so
   that no decoded set has a compliance, resistance or volume <= 0; the decoder's squared error
-  is then measured on those logarithms).
+  is then measured on those logarithms), ``beta_prior`` (default 0, the paper's loss; > 0 adds
+  ``beta_prior * E||y - NN_e(NN_d(y', w))||^2`` with ``w ~ N(0, I)`` drawn afresh each epoch,
+  the latent draws an inversion decodes, beside the re-evaluation term's encoder draws; same
+  target; the losses CSV then has ``train_prior_reeval``/``test_prior_reeval`` columns).
 * ``noisy_scaling`` (flow, encoder/decoder; default False): standardize the outputs with the
   std of the noisy outputs, ``sqrt(std^2 + (delta*s)^2)`` (the paper's public code), instead of
   the clean training outputs' std.
@@ -129,7 +132,8 @@ HYPER_KEYS: dict[str, tuple[tuple[str, ...], dict]] = {
         _COMMON_REQUIRED + ("latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                             "decoder_layers", "beta_d", "beta_v", "beta_r"),
         {**_COMMON_OPTIONAL, "reduction": "sum", "activation": "silu", "reeval_target": "noisy",
-         "noisy_scaling": False, "kl_warmup_epochs": 0, "logvar_max": None, "log_parameters": False},
+         "noisy_scaling": False, "kl_warmup_epochs": 0, "logvar_max": None, "log_parameters": False,
+         "beta_prior": 0.0},
     ),
 }
 _EVAL_CHUNK = 65536
@@ -189,6 +193,8 @@ def check_hyper(stage: str, hyper: dict) -> dict:
                                                                           and h["logvar_max"] > 0):
         raise ValueError(f"encoder_decoder hyperparameter logvar_max must be null or a number > 0, "
                          f"got {h['logvar_max']!r}")
+    if stage == "encoder_decoder" and not (_is_real(h["beta_prior"]) and h["beta_prior"] >= 0):
+        raise ValueError(f"encoder_decoder hyperparameter beta_prior must be a number >= 0, got {h['beta_prior']!r}")
     if stage == "encoder_decoder" and h["reeval_target"] not in ("noisy", "clean"):
         raise ValueError(f"reeval_target must be 'noisy' or 'clean', got {h['reeval_target']!r}")
     return h
@@ -412,7 +418,11 @@ class EncoderDecoderStage(_Stage):
         noise = _std_noise(len(y_te), self.noise_level, test_generator, self.scale)
         self.y_te = self.tensor(y_te if noise is None else torch.as_tensor(y_te) + noise)
         self.eps_te = self.tensor(torch.randn(len(v_te), self.latent, generator=test_generator))
-        self.y_epoch, self.eps_epoch = self.y_tr, None
+        self.beta_prior = float(hyper["beta_prior"])
+        if self.beta_prior > 0:  # no random numbers drawn otherwise: the paper's loss is unchanged
+            self.parts = self.parts + ("prior_reeval",)
+            self.w_prior_te = self.tensor(torch.randn(len(v_te), self.latent, generator=test_generator))
+        self.y_epoch, self.eps_epoch, self.w_prior_epoch = self.y_tr, None, None
 
     def kl_factor(self, epoch: int) -> float:
         """Multiplier of ``beta_v`` in training epoch ``epoch`` (0-based): ``(epoch + 1) / k``
@@ -425,18 +435,24 @@ class EncoderDecoderStage(_Stage):
         noise = _std_noise(self.n_train, self.noise_level, generator, self.scale)
         self.y_epoch = self.y_tr if noise is None else self.y_tr + self.tensor(noise)
         self.eps_epoch = self.tensor(torch.randn(self.n_train, self.latent, generator=generator))
+        if self.beta_prior > 0:
+            self.w_prior_epoch = self.tensor(torch.randn(self.n_train, self.latent, generator=generator))
 
-    def _loss(self, v, y, eps, y_clean, betas):
+    def _loss(self, v, y, eps, y_clean, betas, w_prior):
         return nw.encoder_decoder_loss(self.model, v, y, eps, self.reevaluate, *betas, reduction=self.reduction,
-                                       y_target_std=y_clean if self.clean_target else None)
+                                       y_target_std=y_clean if self.clean_target else None,
+                                       w_prior=w_prior, beta_prior=self.beta_prior)
 
     def batch_loss(self, idx):
-        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx], self.train_betas)
+        w = None if self.w_prior_epoch is None else self.w_prior_epoch[idx]
+        return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx], self.train_betas, w)
 
     @torch.no_grad()
     def evaluate(self):
+        w = getattr(self, "w_prior_te", None)
         return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s],
-                                                                  self.y_te_clean[s], self.betas))
+                                                                  self.y_te_clean[s], self.betas,
+                                                                  None if w is None else w[s]))
 
 
 # ----------------------------------------------------------------------------- outputs

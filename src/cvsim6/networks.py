@@ -500,11 +500,15 @@ class EncoderDecoder(nn.Module):
         """Standardized parameters (N, 23) from standardized outputs and latent w."""
         return self.decoder(torch.cat((y_std, w), dim=1))
 
+    @staticmethod
+    def latent_sample(mu: torch.Tensor, logvar: torch.Tensor, eps: torch.Tensor | None) -> torch.Tensor:
+        """``w = mu + eps * sigma`` (reparameterization; ``w = mu`` if eps is None)."""
+        return mu if eps is None else mu + eps * torch.exp(0.5 * logvar)
+
     def forward(self, v_std: torch.Tensor, y_std: torch.Tensor, eps: torch.Tensor | None = None):
         """``(v_hat_std, mu, logvar)`` with ``w = mu + eps * sigma`` (``w = mu`` if eps is None)."""
         mu, logvar = self.encode(v_std)
-        w = mu if eps is None else mu + eps * torch.exp(0.5 * logvar)
-        return self.decode(y_std, w), mu, logvar
+        return self.decode(y_std, self.latent_sample(mu, logvar, eps)), mu, logvar
 
     @torch.no_grad()
     def invert(self, y, w, corrector_steps: int = DEFAULT_CORRECTOR_STEPS):
@@ -581,28 +585,27 @@ def encoder_decoder_loss(model: EncoderDecoder, v_std: torch.Tensor, y_std: torc
     Returns ``(total, parts)`` where ``parts`` has the unweighted ``decoder``, ``kl`` and
     ``reeval`` terms, and ``prior_reeval`` when that term is on (detached tensors).
     """
+    n = len(v_std)
     prior = w_prior is not None and beta_prior != 0 and reevaluate is not None
+    mu, logvar = model.encode(v_std)
+    w = model.latent_sample(mu, logvar, eps)
     if prior:
-        mu, logvar = model.encode(v_std)
-        w = mu + eps * torch.exp(0.5 * logvar)
         decoded = model.decode(torch.cat((y_std, y_std)), torch.cat((w, w_prior.to(w))))
-        v_hat = decoded[: len(v_std)]
     else:
-        v_hat, mu, logvar = model(v_std, y_std, eps)
-    dec = squared_error(v_hat, v_std, reduction)
+        decoded = model.decode(y_std, w)
+    dec = squared_error(decoded[:n], v_std, reduction)
     kl = kl_divergence(mu, logvar)
     total = beta_d * dec + beta_v * kl
-    target = y_std if y_target_std is None else y_target_std
     parts = {"decoder": dec.detach(), "kl": kl.detach()}
-    if prior:
+    if prior or (reevaluate is not None and beta_r != 0):
+        target = y_std if y_target_std is None else y_target_std
         y_hat = reevaluate(decoded)
-        rec = squared_error(y_hat[: len(v_std)], target, reduction)
-        rec_prior = squared_error(y_hat[len(v_std):], target, reduction)
-        total = total + beta_r * rec + beta_prior * rec_prior
-        parts["prior_reeval"] = rec_prior.detach()
-    elif reevaluate is not None and beta_r != 0:
-        rec = squared_error(reevaluate(v_hat), target, reduction)
+        rec = squared_error(y_hat[:n], target, reduction)
         total = total + beta_r * rec
+        if prior:
+            rec_prior = squared_error(y_hat[n:], target, reduction)
+            total = total + beta_prior * rec_prior
+            parts["prior_reeval"] = rec_prior.detach()
     else:
         rec = torch.zeros((), device=v_std.device, dtype=v_std.dtype)
     parts["reeval"] = rec.detach()

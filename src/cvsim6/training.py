@@ -422,6 +422,8 @@ class EncoderDecoderStage(_Stage):
         if self.beta_prior > 0:  # no random numbers drawn otherwise: the paper's loss is unchanged
             self.parts = self.parts + ("prior_reeval",)
             self.w_prior_te = self.tensor(torch.randn(len(v_te), self.latent, generator=test_generator))
+        else:
+            self.w_prior_te = None
         self.y_epoch, self.eps_epoch, self.w_prior_epoch = self.y_tr, None, None
 
     def kl_factor(self, epoch: int) -> float:
@@ -449,7 +451,7 @@ class EncoderDecoderStage(_Stage):
 
     @torch.no_grad()
     def evaluate(self):
-        w = getattr(self, "w_prior_te", None)
+        w = self.w_prior_te
         return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s],
                                                                   self.y_te_clean[s], self.betas,
                                                                   None if w is None else w[s]))

@@ -152,3 +152,16 @@ def test_emulator_errors_summary_finds_the_output_that_holds_the_relative_error(
     assert s["worst_%"] == pytest.approx(10.0) and s["median_%"] == pytest.approx(1.0)
     assert s["p99_%"] == pytest.approx(1.0 + 0.98 * 9.0)  # linear interpolation between 1% and 10%
     assert s["top_output"] == "b" and s["top_share"] == pytest.approx(0.01 / (0.01 + 0.0001))
+
+
+def test_emulator_errors_appendix_c_ratios_are_the_scorecards_geometric_means():
+    from cvsim6 import paper_values
+
+    ee = _load("emulator_errors")
+    paper = paper_values.EMULATOR_VALIDATION_STRUCTURAL
+    y = np.zeros((2, 16))
+    pred = np.stack([3.0 * np.asarray(paper["max"]), np.zeros(16)])  # max error 3x the paper's everywhere
+    r = ee.appendix_c_ratios(y, pred)
+    assert r["appendix_c_max_x"] == pytest.approx(3.0)
+    mean_ratio = 1.5 * np.asarray(paper["max"]) / np.asarray(paper["mean"])  # mean of |e| over the two rows
+    assert r["appendix_c_mean_x"] == pytest.approx(np.exp(np.log(mean_ratio).mean()))

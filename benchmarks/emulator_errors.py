@@ -52,11 +52,11 @@ def appendix_c_ratios(y: np.ndarray, y_pred: np.ndarray) -> dict:
     ours / paper for the mean and for the max absolute error (the scorecard's two rows)."""
     from cvsim6 import paper_values
     from cvsim6.evaluation import error_statistics
-    from cvsim6.scorecard import _geomean_ratio
+    from cvsim6.scorecard import geomean_ratio
 
     stats = error_statistics(y, y_pred)
     paper = paper_values.EMULATOR_VALIDATION_STRUCTURAL
-    return {f"appendix_c_{k}_x": _geomean_ratio(stats[k], paper[k]) for k in ("mean", "max")}
+    return {f"appendix_c_{k}_x": geomean_ratio(stats[k], paper[k]) for k in ("mean", "max")}
 
 
 def _run(job: tuple) -> dict:

@@ -27,8 +27,8 @@ def test_outputs_counted_are_those_seen_in_more_than_10_patients():
 
 
 def test_geometric_mean_ratio_and_best_delta():
-    assert scorecard._geomean_ratio([2.0, 8.0], [1.0, 1.0]) == pytest.approx(4.0)
-    assert scorecard._geomean_ratio([1.0, np.nan], [2.0, 1.0]) == pytest.approx(0.5)  # NaN rows skipped
+    assert scorecard.geomean_ratio([2.0, 8.0], [1.0, 1.0]) == pytest.approx(4.0)
+    assert scorecard.geomean_ratio([1.0, np.nan], [2.0, 1.0]) == pytest.approx(0.5)  # NaN rows skipped
     t = ehr_table(1.3, COUNTS)
     outputs = scorecard.ek_outputs(t)
     assert scorecard.best_delta_agreement(t, outputs) == 13  # same ordering as the paper

@@ -46,7 +46,9 @@ class Headline:
     is_ratio: bool = False
 
 
-def _geomean_ratio(ours: np.ndarray, paper: np.ndarray) -> float:
+def geomean_ratio(ours: np.ndarray, paper: np.ndarray) -> float:
+    """Geometric mean over the entries of ours / paper (dimensionless), skipping entries that are
+    not finite or not positive on either side; NaN when none is left."""
     ours, paper = np.asarray(ours, float), np.asarray(paper, float)
     ok = np.isfinite(ours) & np.isfinite(paper) & (ours > 0) & (paper > 0)
     if not ok.any():
@@ -94,7 +96,7 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
         for stat in ("Mean", "Max"):
             add(f"{key}_{stat.lower()}",
                 f"{name}, {stat.lower()} abs. error: geometric mean of ours/paper over 16 outputs", 1.0, where,
-                files[key], _geomean_ratio(table[f"{stat} (ours)"], table[f"{stat} (paper)"]), is_ratio=True)
+                files[key], geomean_ratio(table[f"{stat} (ours)"], table[f"{stat} (paper)"]), is_ratio=True)
     h = paper_values.STRUCTURAL_HEADLINES
     manifold = _read_json(files["manifold"])
     add("manifold_l2", "Manifold reconstruction of y*: max relative l2 error (%)", 100 * h["max_rel_error_manifold"],
@@ -124,7 +126,7 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
             continue
         add(f"ek_{d:g}", f"EHR e_k at delta = {d:g}: geometric mean of ours/paper over the {len(outputs)} outputs "
             f"observed in > {MIN_PATIENTS_EXCLUSIVE} patients", 1.0, "table 5", files["ehr_errors"],
-            _geomean_ratio(t.loc[outputs, col], [paper_values.EHR_EK[n][i] for n in outputs]), is_ratio=True)
+            geomean_ratio(t.loc[outputs, col], [paper_values.EHR_EK[n][i] for n in outputs]), is_ratio=True)
     add("ek_best_delta", f"EHR: outputs whose lowest e_k is at the paper's delta (of {len(outputs)})",
         len(outputs), "table 5", files["ehr_errors"], best_delta_agreement(ek, outputs))
     st = pd.read_csv(files["stiffness"])

@@ -4,7 +4,9 @@
 # Run from the repository root, e.g.
 #   snakemake --cores 2 --workflow-profile workflow/profiles/local all
 # Rules live in workflow/rules/*.smk; every rule calls one function of the
-# cvsim6 package through workflow/scripts/call.py. See README.md.
+# cvsim6 package through workflow/scripts/call.py, named once in `params: function`;
+# attach_code_inputs() (common.smk, last line here) adds that function's source files
+# as the rule's `code` input, so editing a module reruns only the rules that import it.
 
 from snakemake.utils import min_version, validate
 
@@ -74,3 +76,6 @@ rule all:
             delta=noise_tag(config["ehr_study"]["figure_noise_level"]),
         ),
         rules.reproduction_scorecard.output,
+
+
+attach_code_inputs()

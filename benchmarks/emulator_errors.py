@@ -35,7 +35,7 @@ VARIANTS = {"paper": {"linear_skip": False, "log_inputs": False}, "log": {"linea
 def error_summary(y: np.ndarray, y_pred: np.ndarray, names: list[str]) -> dict:
     """Worst / 99th-percentile / median relative l2 error (%) of the rows, and the output with the
     largest share of the mean squared relative error ``mean_i (e_ij / |y_i|)^2`` with that share."""
-    from cvsim6.evaluation import relative_l2_errors
+    from cvsim6.studies.evaluation import relative_l2_errors
 
     y, y_pred = np.asarray(y, float), np.asarray(y_pred, float)
     rel = relative_l2_errors(y, y_pred)
@@ -51,8 +51,8 @@ def appendix_c_ratios(y: np.ndarray, y_pred: np.ndarray) -> dict:
     """The structural study's appendix-C headline: the geometric mean over the 16 outputs of
     ours / paper for the mean and for the max absolute error (the scorecard's two rows)."""
     from cvsim6 import paper_values
-    from cvsim6.evaluation import error_statistics
-    from cvsim6.scorecard import geomean_ratio
+    from cvsim6.studies.evaluation import error_statistics
+    from cvsim6.reporting.scorecard import geomean_ratio
 
     stats = error_statistics(y, y_pred)
     paper = paper_values.EMULATOR_VALIDATION_STRUCTURAL
@@ -60,8 +60,9 @@ def appendix_c_ratios(y: np.ndarray, y_pred: np.ndarray) -> dict:
 
 
 def _run(job: tuple) -> dict:
-    from cvsim6 import datasets, training
-    from cvsim6 import networks as nw
+    from cvsim6.data import datasets
+    from cvsim6.training import core as training
+    from cvsim6.nets import networks as nw
     from cvsim6.registry import OUTPUT_NAMES
 
     name, study, hyper, seed = job

@@ -77,7 +77,10 @@ def estimate(per_epoch: dict, training: dict, cores: int) -> tuple[pd.DataFrame,
 
 
 def _synthetic_splits(study: str, cfg: dict, folder: Path, n_unique: int, seed: int) -> tuple[Path, Path]:
-    from cvsim6 import datasets, priors, registry, solver
+    from cvsim6.data import datasets
+    from cvsim6.data import priors
+    from cvsim6 import registry
+    from cvsim6.model import solver
 
     data = cfg["data"]["studies"][study]
     lo, hi = priors.prior_bounds(data["prior"])
@@ -98,7 +101,9 @@ def _synthetic_splits(study: str, cfg: dict, folder: Path, n_unique: int, seed: 
 def measure(study: str, network: str, cfg: dict, train: Path, test: Path, folder: Path, epochs: int,
             seed: int) -> float:
     """CPU seconds per epoch of ``network``, over ``epochs`` epochs (at least one test evaluation)."""
-    from cvsim6 import datasets, networks, training
+    from cvsim6.data import datasets
+    from cvsim6.nets import networks
+    from cvsim6.training import core as training
 
     h = dict(cfg["training"]["studies"][study][network])
     h.pop("restarts", None)

@@ -14,7 +14,9 @@ import time
 
 import numpy as np
 
-from cvsim6 import priors, registry, solver
+from cvsim6.data import priors
+from cvsim6 import registry
+from cvsim6.model import solver
 
 
 def main() -> None:

@@ -47,7 +47,7 @@ def schedule(config_file: Path, study: str, network: str) -> dict:
 
 
 def _run(job: tuple) -> pd.DataFrame:
-    from cvsim6 import training
+    from cvsim6.training import core as training
 
     name, study, network, hyper, seconds, seed, delta, emulator = job
     data = ROOT / "results" / "data" / study

@@ -1,15 +1,15 @@
 """Per-rule CPU and wall seconds of a workflow run, from Snakemake's per-job benchmark files.
 
-Every rule writes ``benchmarks/<rule>.tsv`` or ``benchmarks/<rule>/<wildcards>.tsv``
+Every rule writes ``logs/benchmarks/<rule>.tsv`` or ``logs/benchmarks/<rule>/<wildcards>.tsv``
 (Snakemake's ``benchmark:`` directive: wall seconds ``s``, CPU seconds ``cpu_time``, peak
 memory ``max_rss`` in MB). This sums them per rule, largest CPU first, and gives the total:
 where the CPU time of a ``snakemake --cores 2 all`` run went.
 
-    .venv/bin/python benchmarks/workflow_times.py            # benchmarks/ of this checkout
-    .venv/bin/python benchmarks/workflow_times.py --root ../other-clone/benchmarks --markdown
+    .venv/bin/python benchmarks/workflow_times.py            # logs/benchmarks/ of this checkout
+    .venv/bin/python benchmarks/workflow_times.py --root ../other-clone/logs/benchmarks --markdown
 
 A file left from an earlier run of another rule set is counted too: run it on the
-``benchmarks/`` of a fresh clone for one run's figures.
+``logs/benchmarks/`` of a fresh clone for one run's figures.
 """
 from __future__ import annotations
 
@@ -18,17 +18,16 @@ from pathlib import Path
 
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parent
+#: The workflow's per-job benchmark files of this checkout.
+JOB_BENCHMARKS = Path(__file__).resolve().parents[1] / "logs" / "benchmarks"
 
 
 def job_times(root: Path) -> pd.DataFrame:
-    """One row per job: source (``trained``, or ``published`` for ``benchmarks/published/``, the
+    """One row per job: source (``trained``, or ``published`` for ``published/``, the
     run with the paper's networks), rule, job (wildcards), wall_s, cpu_s, max_rss_mb."""
     rows = []
     for tsv in sorted(root.rglob("*.tsv")):
         rel = tsv.relative_to(root)
-        if rel.parts[0] == "results":  # benchmarks/results/ holds this folder's own outputs
-            continue
         source = "trained"
         if rel.parts[0] == "published":  # a run with the published networks (config/published.yaml)
             source, rel = "published", rel.relative_to("published")
@@ -61,7 +60,7 @@ def rule_times(jobs: pd.DataFrame) -> pd.DataFrame:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", type=Path, default=ROOT, help="the workflow's benchmarks/ folder")
+    ap.add_argument("--root", type=Path, default=JOB_BENCHMARKS, help="the workflow's logs/benchmarks/ folder")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
     ap.add_argument("--jobs", action="store_true", help="one row per job instead of per rule")
     ap.add_argument("--source", choices=["trained", "published", "all"], default="trained",

@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 import torch
 
-from cvsim6 import priors, registry
+from cvsim6.data import priors
+from cvsim6 import registry
 
 
 @pytest.fixture(scope="session")

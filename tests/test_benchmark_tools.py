@@ -31,7 +31,7 @@ def test_workflow_times_sums_jobs_per_rule_and_source(tmp_path):
     _bench(tmp_path / "train_emulator" / "structural.tsv", 900.0, 880.0, 500.0)
     _bench(tmp_path / "ehr_patients.tsv", 2.0, 1.5, 100.0)
     _bench(tmp_path / "published" / "convert_published" / "ehr.tsv", 3.0, 2.0, 200.0)
-    (tmp_path / "results").mkdir()  # the benchmark scripts' own outputs are not workflow jobs
+    (tmp_path / "results").mkdir()  # files other than TSV are not jobs
     (tmp_path / "results" / "training_x.csv").write_text("a\n1\n")
 
     jobs = wt.job_times(tmp_path)
@@ -114,7 +114,7 @@ def test_batched_copies_compute_each_copys_loss_and_gradient():
     only, and the gradient of the summed loss is each network's own gradient, stacked."""
     import torch
 
-    from cvsim6 import networks as nw
+    from cvsim6.nets import networks as nw
 
     bc = _load("batched_copies")
     torch.manual_seed(0)

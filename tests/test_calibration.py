@@ -4,7 +4,7 @@ is flagged the other way), and constructed samples with known ranks, spread and 
 import numpy as np
 import pytest
 
-from cvsim6 import calibration
+from cvsim6.inference import calibration
 
 
 def gaussian_toy(n_cases=400, n_samples=100, d=3, noise=0.5, std_scale=1.0, seed=0):

@@ -7,7 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import cli, registry, solver
+from cvsim6 import cli
+from cvsim6 import registry
+from cvsim6.model import solver
 
 
 def test_simulate_round_trip(tmp_path, structural_sets):
@@ -150,7 +152,7 @@ def test_invert_round_trip(tmp_path):
     """Saved (untrained) networks in the workflow's layout; partial observations in."""
     import torch
 
-    from cvsim6 import networks
+    from cvsim6.nets import networks
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
@@ -220,7 +222,8 @@ def ehr_models(tmp_path_factory):
     import torch
 
     from conftest import prior_sample
-    from cvsim6 import datasets, networks
+    from cvsim6.data import datasets
+    from cvsim6.nets import networks
 
     torch.manual_seed(0)
     v = prior_sample("ehr", 400, 5)
@@ -347,7 +350,7 @@ def test_invert_keeps_going_past_a_blank_row(tmp_path, ehr_models, capsys):
 
 
 def test_invert_flags_decoded_sets_outside_the_domain(tmp_path, ehr_models, capsys):
-    from cvsim6 import model
+    from cvsim6.model import equations as model
 
     models = ehr_models[0]
     src = tmp_path / "obs.csv"
@@ -370,7 +373,8 @@ def test_invert_flags_decoded_sets_outside_the_domain(tmp_path, ehr_models, caps
 def test_invert_seed_reaches_every_draw(tmp_path, ehr_models):
     """Same --seed, same file, bit for bit (the OOD reference included, drawn from the flow);
     another seed, other reference draws."""
-    from cvsim6 import ehr_study, networks
+    from cvsim6.studies import ehr as ehr_study
+    from cvsim6.nets import networks
 
     models = ehr_models[0]
     src = tmp_path / "obs.csv"

@@ -1,4 +1,4 @@
-"""The config files and their JSON schema (cvsim6.config)."""
+"""The config files and their JSON schema (cvsim6.workflow.config)."""
 from __future__ import annotations
 
 import copy
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from cvsim6.config import SCHEMA_PATH, ConfigError, find_schema, load_config, validate_config
+from cvsim6.workflow.config import SCHEMA_PATH, ConfigError, find_schema, load_config, validate_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ["config.yaml", "paper.yaml", "smoke.yaml"]
@@ -104,7 +104,7 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
     update_config): a network entry must not inherit schedule options it did not state."""
     from snakemake.utils import update_config
 
-    from cvsim6.training import check_hyper
+    from cvsim6.training.core import check_hyper
 
     cfg = load_config(ROOT / "config" / "config.yaml")
     update_config(cfg, load_config(ROOT / "config" / name))

@@ -5,8 +5,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import datasets, registry
-from cvsim6.datasets import DataError
+from cvsim6.data import datasets
+from cvsim6 import registry
+from cvsim6.data.datasets import DataError
 
 PRIOR = {"default": [0.7, 1.3], "kinds": {"compliance": [0.5, 1.5]}}
 SIM = {"steps_per_cycle": 400, "n_cycles": 12, "window_cycles": 3, "method": "batch"}

@@ -4,7 +4,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from cvsim6 import downloads, ehr, registry
+from cvsim6.data import downloads
+from cvsim6.data import ehr
+from cvsim6 import registry
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
 

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import ehr_study, registry
+from cvsim6.studies import ehr as ehr_study
+from cvsim6 import registry
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
 
@@ -35,7 +36,8 @@ def gaussian_twin():
     import torch
 
     from conftest import prior_sample
-    from cvsim6 import networks, solver
+    from cvsim6.nets import networks
+    from cvsim6.model import solver
 
     torch.manual_seed(0)
     v = prior_sample("ehr", 440, 6)
@@ -124,7 +126,7 @@ def test_unit_problems():
 
 @pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
 def test_real_patients_pass_the_unit_checks():
-    from cvsim6 import ehr
+    from cvsim6.data import ehr
 
     assert ehr_study.unit_problems(ehr.ehr_outputs(REAL)) == []  # all 84, selected or not
 

@@ -5,7 +5,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import evaluation
+from cvsim6.studies import evaluation
 
 
 def test_error_statistics_count_left_out_rows(caplog):
@@ -14,7 +14,7 @@ def test_error_statistics_count_left_out_rows(caplog):
     yhat[:, 0] = [1.0, -1.0, 3.0, -3.0, 2.0]
     yhat[2, 5] = np.nan  # left out everywhere: |err| 1, 1, 3, 2 remain
     yhat[4, 9] = np.inf
-    with caplog.at_level(logging.WARNING, logger="cvsim6.evaluation"):
+    with caplog.at_level(logging.WARNING, logger="cvsim6.studies.evaluation"):
         s = evaluation.error_statistics(y, yhat)
     assert s.loc["Hr"].tolist() == pytest.approx([5 / 3, 3.0, np.std([1, 1, 3])])
     assert s.attrs == {"n_rows": 5, "n_used": 3, "n_nonfinite": 2}

@@ -2,8 +2,9 @@
 import numpy as np
 import pytest
 
-from cvsim6 import identifiability as idf
-from cvsim6 import priors, registry
+from cvsim6.model import identifiability as idf
+from cvsim6.data import priors
+from cvsim6 import registry
 
 
 def test_cumulative_energy_and_modes():

@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 import torch
 
-from cvsim6 import inversion, networks, registry
+from cvsim6.inference import inversion
+from cvsim6.nets import networks
+from cvsim6 import registry
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +95,8 @@ def test_corrector_steps_have_one_default():
     """The library, the workflow's functions and the CLI decode with the same default."""
     import inspect
 
-    from cvsim6 import cli, ehr_study
+    from cvsim6 import cli
+    from cvsim6.studies import ehr as ehr_study
 
     assert networks.DEFAULT_CORRECTOR_STEPS == 2  # the paper's code
     for f in (networks.EncoderDecoder.invert, inversion.decode_latent, ehr_study.invert_observations,

@@ -1,4 +1,4 @@
-"""Loss figures (cvsim6.loss_plots): a divergence spike is cut from the axes and marked."""
+"""Loss figures (cvsim6.reporting.loss_figures): a divergence spike is cut from the axes and marked."""
 from __future__ import annotations
 
 import re
@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import loss_plots as lp
-from cvsim6 import networks
+from cvsim6.reporting import loss_figures as lp
+from cvsim6.nets import networks
 
 
 def test_divergence_epochs_flags_a_spike_and_its_recovery_but_not_a_falling_or_rising_curve():

@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
-from cvsim6 import model, registry, solver
+from cvsim6.model import equations as model
+from cvsim6 import registry
+from cvsim6.model import solver
 
 I = registry.PARAMETER_INDEX
 
@@ -91,7 +93,7 @@ def test_parameter_frame_needs_every_name(default_params):
 @pytest.mark.parametrize("which", ["default", "ehr"])
 def test_compiled_kernel_starts_from_the_models_initial_condition(which, default_params, ehr_sets):
     """The numba kernel solves the appendix-A system itself; its first node must be the
-    pressures cvsim6.model.initial_pressures gives (and the volumes they imply)."""
+    pressures cvsim6.model.equations.initial_pressures gives (and the volumes they imply)."""
     for p in {"default": default_params[None], "ehr": ehr_sets[:4]}[which]:
         traj, _, status = solver.simulate_trajectory(p, n_cycles=4, window_cycles=1)
         assert traj.t[0] == 0.0

@@ -5,7 +5,7 @@ import pytest
 
 pytestmark = pytest.mark.slow  # trains small estimators (about half a minute)
 
-from cvsim6 import npe
+from cvsim6.inference import npe
 
 LO, HI = np.full(23, 1.0), np.full(23, 3.0)
 

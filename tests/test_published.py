@@ -10,8 +10,16 @@ import pandas as pd
 import pytest
 import torch
 
-from cvsim6 import downloads, ehr, ehr_study, inversion, paper_values, priors, published, registry, solver
-from cvsim6.networks import load_model
+from cvsim6.data import downloads
+from cvsim6.data import ehr
+from cvsim6.studies import ehr as ehr_study
+from cvsim6.inference import inversion
+from cvsim6 import paper_values
+from cvsim6.data import priors
+from cvsim6.nets import published
+from cvsim6 import registry
+from cvsim6.model import solver
+from cvsim6.nets.networks import load_model
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 NETWORKS = SHARED / "paper_networks"

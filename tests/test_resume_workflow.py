@@ -30,7 +30,7 @@ pytestmark = pytest.mark.slow
 
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 MODEL = "results/models/structural/emulator.pt"
-CHECKPOINT = MODEL + ".ckpt"  # cvsim6.training's default: the model path + ".ckpt"
+CHECKPOINT = MODEL + ".ckpt"  # cvsim6.training.core's default: the model path + ".ckpt"
 LOSSES = "results/training/structural/emulator_losses.csv"  # one row per epoch, appended
 EPOCHS = 300
 KILL_AFTER = 10

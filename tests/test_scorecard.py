@@ -3,7 +3,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import paper_values, scorecard
+from cvsim6 import paper_values
+from cvsim6.reporting import scorecard
 from cvsim6.registry import OUTPUT_NAMES
 
 

@@ -3,8 +3,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import model, registry, solver
-from cvsim6.solver import STATUS_REASONS
+from cvsim6.model import equations as model
+from cvsim6 import registry
+from cvsim6.model import solver
+from cvsim6.model.solver import STATUS_REASONS
 
 NAMES = registry.OUTPUT_NAMES
 I = registry.PARAMETER_INDEX
@@ -177,7 +179,8 @@ def test_trajectory_frame_has_every_signal(default_params):
 def test_valve_at_equilibrium_is_not_a_failure(tmp_path):
     """Rows of the default EHR data set where a valve at pressure equilibrium toggles
     within a step (once flagged as chatter) are accurate and not flagged."""
-    from cvsim6 import datasets, priors as pr
+    from cvsim6.data import datasets
+    from cvsim6.data import priors as pr
 
     prior = {"default": [0.7, 1.3], "kinds": {"compliance": [0.2, 1.6], "resistance": [0.2, 1.6]},
              "parameters": {"Hr": [0.8, 1.6]}}

@@ -2,7 +2,10 @@
 import numpy as np
 import pytest
 
-from cvsim6 import model, registry, solver, stiffness
+from cvsim6.model import equations as model
+from cvsim6 import registry
+from cvsim6.model import solver
+from cvsim6.model import stiffness
 
 I = registry.PARAMETER_INDEX
 

@@ -6,7 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import evaluation, networks, registry, structural_study
+from cvsim6.studies import evaluation
+from cvsim6.nets import networks
+from cvsim6 import registry
+from cvsim6.studies import structural as structural_study
 
 
 def test_error_statistics_known_values():
@@ -31,7 +34,8 @@ def test_relative_l2_errors():
 def test_out_of_domain_decoded_sets_are_counted_not_fatal(tmp_path):
     """A decoder may extrapolate past the model's domain (C_v < 0 seen in a real run): such sets
     are counted and left out; the others give the known answer (y* from the same parameters)."""
-    from cvsim6 import datasets, solver
+    from cvsim6.data import datasets
+    from cvsim6.model import solver
 
     sim = {"steps_per_cycle": solver.DEFAULT_STEPS_PER_CYCLE, "n_cycles": solver.DEFAULT_N_CYCLES,
            "window_cycles": solver.DEFAULT_WINDOW_CYCLES}
@@ -82,7 +86,8 @@ def test_reconstruction_spread_is_the_order_statistics_and_leaves_the_headline(t
     is the 6th smallest error with probability 1/2, the 4th or less with 1/4, so the 90% quantile
     is the largest error and the 10% one the 4th smallest; the first-three headline and its table
     are those of a run without the spread, bit for bit."""
-    from cvsim6 import datasets, solver
+    from cvsim6.data import datasets
+    from cvsim6.model import solver
 
     sim = {"steps_per_cycle": solver.DEFAULT_STEPS_PER_CYCLE, "n_cycles": solver.DEFAULT_N_CYCLES,
            "window_cycles": solver.DEFAULT_WINDOW_CYCLES}
@@ -150,7 +155,7 @@ def test_trajectory_panels_draw_every_set_and_target():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from cvsim6 import solver
+    from cvsim6.model import solver
 
     sim = {"steps_per_cycle": 200, "n_cycles": 6, "window_cycles": 2}
     v = np.repeat(registry.default_parameters()[None], 3, axis=0)

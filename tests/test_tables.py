@@ -1,12 +1,13 @@
-"""The model tables (cvsim6.tables) against the registry and the paper."""
+"""The model tables (cvsim6.reporting.tables) against the registry and the paper."""
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from cvsim6 import priors, registry
-from cvsim6.tables import (
+from cvsim6.data import priors
+from cvsim6 import registry
+from cvsim6.reporting.tables import (
     format_number,
     input_parameter_table,
     output_parameter_table,

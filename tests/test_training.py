@@ -1,4 +1,4 @@
-"""Training stages (cvsim6.training): losses fall, noise injection, outputs, resume, seeding."""
+"""Training stages (cvsim6.training.core): losses fall, noise injection, outputs, resume, seeding."""
 from __future__ import annotations
 
 import math
@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 import torch
 
-from cvsim6 import networks as nw
-from cvsim6 import training as tr
+from cvsim6.nets import networks as nw
+from cvsim6.training import core as tr
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
 
 EMU = dict(hidden=32, layers=3, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
@@ -69,7 +69,7 @@ def test_emulator_trains(emulator, data):
     # StepLR stepped per epoch: lr of epoch e is lr * gamma^floor((e-1)/step)
     expected = EMU["lr"] * EMU["lr_gamma"] ** ((df["epoch"] - 1) // EMU["lr_step"])
     assert np.allclose(df["lr"], expected)
-    assert not list(d.glob("*.png"))  # figures are drawn from the CSV elsewhere (cvsim6.loss_plots)
+    assert not list(d.glob("*.png"))  # figures are drawn from the CSV elsewhere (cvsim6.reporting.loss_figures)
     model, info = nw.load_model(d / "emulator.pt", with_info=True)
     assert info["stage"] == "emulator" and info["noise_level"] == 0.0 and info["hyper"]["hidden"] == 32
     # physical-units prediction is better than predicting the mean
@@ -182,7 +182,7 @@ def test_configured_loss_weights_keep_the_latent_space_alive(config_file, data, 
     values read literally (KL weighted 2000, summed errors) collapse it: KL -> 0."""
     from pathlib import Path
 
-    from cvsim6.config import load_config
+    from cvsim6.workflow.config import load_config
 
     cfg = load_config(Path(__file__).parents[1] / "config" / config_file)
     shipped = cfg["training"]["studies"]["structural"]["encoder_decoder"]
@@ -636,7 +636,7 @@ def test_cosine_schedule_learning_rates(data, tmp_path):
 
 def _emulator_test_mse(model_path, test_path):
     """Held-out MSE of a saved emulator in its standardized output space (the training's test loss)."""
-    from cvsim6.datasets import load_split
+    from cvsim6.data.datasets import load_split
 
     net = nw.load_model(model_path)
     v, y = load_split(str(test_path))
@@ -731,7 +731,7 @@ def test_kl_warmup_ramps_the_training_kl_weight_only(data, emulator, tmp_path):
 
 @pytest.mark.parametrize("delta", [0.0, 1.5])
 def test_noisy_scaling_widens_the_output_standardizer(delta, data, emulator, tmp_path):
-    from cvsim6.datasets import load_split
+    from cvsim6.data.datasets import load_split
 
     _, y_tr = load_split(str(data[0]))
     clean_std = y_tr.std(axis=0)

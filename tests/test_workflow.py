@@ -124,16 +124,16 @@ def test_table_rules_end_to_end(tmp_path):
     for rule in ("input_parameter_table", "output_parameter_table"):
         log = (work / "logs" / f"{rule}.log").read_text()
         assert f"rule {rule}: done" in log
-        assert (work / "benchmarks" / f"{rule}.tsv").is_file()
+        assert (work / "logs" / "benchmarks" / f"{rule}.tsv").is_file()
 
     # Up to date now; a change to the package code makes both tables stale.
     proc = snakemake("-n", *TABLE_TARGETS, "--configfile", "config/smoke.yaml", cwd=work)
     assert "Nothing to be done" in proc.stdout + proc.stderr
-    with open(work / "src/cvsim6/tables.py", "a") as fh:
+    with open(work / "src/cvsim6/reporting/tables.py", "a") as fh:
         fh.write("\n# changed\n")
     proc = snakemake("-n", *TABLE_TARGETS, "--configfile", "config/smoke.yaml", cwd=work)
     out = proc.stdout + proc.stderr
-    assert "Updated input files: src/cvsim6/tables.py" in out
+    assert "Updated input files: src/cvsim6/reporting/tables.py" in out
     assert "input_parameter_table" in out and "output_parameter_table" in out
 
 
@@ -286,14 +286,14 @@ def test_every_rule_reruns_when_code_it_imports_changes():
     assert {"structural_inversion_table", "invert_ehr_patients", "convert_published_ehr",
             "train_encoder_decoder", "reproduction_scorecard"} <= checked
     # the case that was stale before: table 3 decodes through inversion.py and simulates with the solver
-    assert {"src/cvsim6/inversion.py", "src/cvsim6/solver.py", "src/cvsim6/_kernel.py"} <= \
-        closures["cvsim6.structural_study"]
+    assert {"src/cvsim6/inference/inversion.py", "src/cvsim6/model/solver.py", "src/cvsim6/model/_kernel.py"} <= \
+        closures["cvsim6.studies.structural"]
 
 
 def test_package_imports_sit_at_module_level():
     """An import of a package module inside a function hides a dependency from the test above."""
     hidden = []
-    for path in sorted((ROOT / "src" / "cvsim6").glob("*.py")):
+    for path in sorted((ROOT / "src" / "cvsim6").rglob("*.py")):
         tree = ast.parse(path.read_text())
         for func in (n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))):
             for node in ast.walk(func):

@@ -4,7 +4,7 @@ import json
 import pandas as pd
 import pytest
 
-from cvsim6 import datasets
+from cvsim6.data import datasets
 from test_workflow import copy_workflow, snakemake
 
 

@@ -16,9 +16,15 @@ import pandas as pd
 import pytest
 import yaml
 
-from cvsim6 import (datasets, ehr_methods, ehr_study, networks, paper_values, priors, registry,
-                    solver)
-from cvsim6.model import outside_domain
+from cvsim6.data import datasets
+from cvsim6.studies import ehr_methods
+from cvsim6.studies import ehr as ehr_study
+from cvsim6.nets import networks
+from cvsim6 import paper_values
+from cvsim6.data import priors
+from cvsim6 import registry
+from cvsim6.model import solver
+from cvsim6.model.equations import outside_domain
 from test_workflow import copy_workflow, snakemake
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -155,7 +161,7 @@ def test_training_stage_end_to_end(trained_run):
     assert restart["chosen"] == min(range(2), key=lambda c: (restart["test_loss"][c], c))
     for c in range(2):
         assert "done" in (work / f"logs/train_encoder_decoder_candidate/structural_delta0_{c}.log").read_text()
-        assert (work / f"benchmarks/train_encoder_decoder_candidate/structural_delta0_{c}.tsv").is_file()
+        assert (work / f"logs/benchmarks/train_encoder_decoder_candidate/structural_delta0_{c}.tsv").is_file()
     # the generated appendix tables state what was run
     arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
     arch = arch.set_index("Module")
@@ -187,7 +193,7 @@ def test_training_stage_end_to_end(trained_run):
     assert len(val) == 16 and (val["Mean (ours)"] > 0).all() and "Mean (paper)" in val
     # the loss figures are drawn by a rule of their own: a change of the plotting code redraws
     # them and retrains nothing
-    code = work / "src/cvsim6/loss_plots.py"
+    code = work / "src/cvsim6/reporting/loss_figures.py"
     text, stat = code.read_text(), code.stat()
     try:
         with open(code, "a") as fh:
@@ -197,7 +203,7 @@ def test_training_stage_end_to_end(trained_run):
         code.write_text(text)
         os.utime(code, ns=(stat.st_atime_ns, stat.st_mtime_ns))
     out = proc.stdout + proc.stderr
-    assert proc.returncode == 0 and "Updated input files: src/cvsim6/loss_plots.py" in out
+    assert proc.returncode == 0 and "Updated input files: src/cvsim6/reporting/loss_figures.py" in out
     assert "plot_training_losses" in out and "train_encoder_decoder" not in out and "train_emulator" not in out
 
 

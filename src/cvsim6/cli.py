@@ -16,14 +16,14 @@ a file that is missing, a directory, empty, not UTF-8 text or not CSV; a header 
 rows; a missing, unknown or repeated column; a cell that is not a number; a blank
 parameter; a parameter outside the model's domain (not finite; Hr, a compliance or a
 resistance <= 0; r_sys not in (0, 2/3)); an observation impossible in its unit (LVEF is a
-fraction, not percent; see :data:`cvsim6.ehr_study.PLAUSIBLE_RANGE`); an option below its
-minimum (``--steps-per-cycle`` < :data:`cvsim6.solver.MIN_STEPS_PER_CYCLE`). Blank lines
+fraction, not percent; see :data:`cvsim6.studies.ehr.PLAUSIBLE_RANGE`); an option below its
+minimum (``--steps-per-cycle`` < :data:`cvsim6.model.solver.MIN_STEPS_PER_CYCLE`). Blank lines
 are skipped; ``NA``, ``NaN``, ``none`` and ``null`` count as blank.
 
 Unphysical values are flagged, not errors: a parameter set the equations accept but no
 circulation has (a negative unstressed volume, a ventricle's systolic compliance not
 below its diastolic one) is simulated and flagged in ``status`` (status 8 of
-:data:`cvsim6.solver.STATUS_REASONS`), as is a row whose solution leaves the
+:data:`cvsim6.model.solver.STATUS_REASONS`), as is a row whose solution leaves the
 physiological range; the other rows are unaffected and the exit code is 0. ``invert``
 flags its decoded parameter sets the same way, per draw (``draw_status``, and
 ``outside_domain`` for sets the simulator cannot take).
@@ -46,12 +46,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__, solver
-from .datasets import load_split
-from .ehr_study import invert_observations, unit_message, unit_problems
-from .model import ParameterError
-from .networks import DEFAULT_CORRECTOR_STEPS, load_model
-from .registry import OUTPUT_NAMES, PARAMETER_NAMES
+from cvsim6 import __version__
+from cvsim6.model import solver
+from cvsim6.data.datasets import load_split
+from cvsim6.studies.ehr import invert_observations, unit_message, unit_problems
+from cvsim6.model.equations import ParameterError
+from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES
 
 #: Cell texts read as blank (case-insensitive, after stripping spaces).
 BLANK = frozenset({"", "na", "n/a", "nan", "none", "null"})

@@ -8,7 +8,6 @@ CALIBRATION = f"{NET}/calibration"
 
 rule train_npe:
     input:
-        code=code_for("cvsim6.npe:train_npe"),
         train=f"{DATA}/ehr/train.parquet",
     output:
         model=f"{TRAINED_MODELS}/ehr/npe_delta{{delta}}.pt",
@@ -24,7 +23,7 @@ rule train_npe:
         mem_mb=4000,
         runtime=60,
     params:
-        function="cvsim6.npe:train_npe",
+        function="cvsim6.inference.npe:train_npe",
         prior=config["data"]["studies"]["ehr"]["prior"],
         hyper=config["calibration"]["npe"],
         noise_level=lambda w: float(w.delta),
@@ -35,7 +34,6 @@ rule train_npe:
 
 rule plot_npe_losses:
     input:
-        code=code_for("cvsim6.loss_plots:plot_training_losses"),
         losses=rules.train_npe.output.losses,
     output:
         figure=report(
@@ -55,7 +53,7 @@ rule plot_npe_losses:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.loss_plots:plot_training_losses",
+        function="cvsim6.reporting.loss_figures:plot_training_losses",
         network=lambda w: f"npe_delta{w.delta}",
     script:
         "../scripts/call.py"
@@ -63,7 +61,6 @@ rule plot_npe_losses:
 
 rule calibration_samples:
     input:
-        code=code_for("cvsim6.calibration_study:calibration_samples"),
         validation=f"{DATA}/ehr/validation.parquet",
         encoder_decoder=f"{MODELS}/ehr/encoder_decoder_delta{{delta}}.pt",
         npe=rules.train_npe.output.model,
@@ -80,7 +77,7 @@ rule calibration_samples:
         mem_mb=4000,
         runtime=30,
     params:
-        function="cvsim6.calibration_study:calibration_samples",
+        function="cvsim6.studies.calibration:calibration_samples",
         noise_level=lambda w: float(w.delta),
         n_cases=config["calibration"]["n_cases"],
         n_samples=config["calibration"]["n_samples"],
@@ -92,7 +89,6 @@ rule calibration_samples:
 
 rule calibration_summary:
     input:
-        code=code_for("cvsim6.calibration_study:calibration_summary"),
         samples=expand(
             f"{CALIBRATION}/samples_delta{{delta}}.npz", delta=noise_tags("ehr")
         ),
@@ -129,7 +125,7 @@ rule calibration_summary:
         mem_mb=4000,
         runtime=30,
     params:
-        function="cvsim6.calibration_study:calibration_summary",
+        function="cvsim6.studies.calibration:calibration_summary",
         prior=config["data"]["studies"]["ehr"]["prior"],
         simulator=config["simulator"],
         figure_noise_level=config["ehr_study"]["figure_noise_level"],
@@ -144,7 +140,6 @@ rule calibration_summary:
 
 rule simulate_ehr_predictions:
     input:
-        code=code_for("cvsim6.ehr_methods:simulate_ehr_predictions"),
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
         simulated=f"{NET_EHR}/predictions_delta{{delta}}_simulated.parquet",
@@ -159,7 +154,7 @@ rule simulate_ehr_predictions:
         mem_mb=2000,
         runtime=20,
     params:
-        function="cvsim6.ehr_methods:simulate_ehr_predictions",
+        function="cvsim6.studies.ehr_methods:simulate_ehr_predictions",
         simulator=config["simulator"],
     script:
         "../scripts/call.py"
@@ -167,7 +162,6 @@ rule simulate_ehr_predictions:
 
 rule invert_ehr_npe:
     input:
-        code=code_for("cvsim6.ehr_methods:invert_ehr_npe"),
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
         npe=rules.train_npe.output.model,
     output:
@@ -183,7 +177,7 @@ rule invert_ehr_npe:
         mem_mb=2000,
         runtime=20,
     params:
-        function="cvsim6.ehr_methods:invert_ehr_npe",
+        function="cvsim6.studies.ehr_methods:invert_ehr_npe",
         simulator=config["simulator"],
         seed=config["seed"],
     script:
@@ -192,7 +186,6 @@ rule invert_ehr_npe:
 
 rule ehr_error_methods:
     input:
-        code=code_for("cvsim6.ehr_methods:ehr_error_methods"),
         patients=rules.ehr_patients.output.patients,
         emulated=expand(
             f"{NET_EHR}/predictions_delta{{delta}}.parquet", delta=noise_tags("ehr")
@@ -217,7 +210,7 @@ rule ehr_error_methods:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.ehr_methods:ehr_error_methods",
+        function="cvsim6.studies.ehr_methods:ehr_error_methods",
         figure_noise_level=config["ehr_study"]["figure_noise_level"],
     script:
         "../scripts/call.py"

@@ -9,8 +9,8 @@ RESULTS = "results"
 TABLES = f"{RESULTS}/tables"
 #: Per-rule log files.
 LOGS = "logs"
-#: Per-rule benchmark TSV files (wall time, memory).
-BENCHMARKS = "benchmarks"
+#: Per-job benchmark TSV files (wall and CPU time, memory), apart from the benchmark scripts.
+BENCHMARKS = f"{LOGS}/benchmarks"
 #: The installed package whose functions the rules call.
 PACKAGE_DIR = "src/cvsim6"
 
@@ -29,7 +29,7 @@ NET_BENCHMARKS = (
 MODELS = f"{NET}/models"
 
 _spec = importlib.util.spec_from_file_location(
-    "cvsim6_codegraph", f"{PACKAGE_DIR}/codegraph.py"
+    "cvsim6_codegraph", f"{PACKAGE_DIR}/workflow/codegraph.py"
 )
 _codegraph = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_codegraph)
@@ -37,13 +37,23 @@ _spec.loader.exec_module(_codegraph)
 
 def code_for(function):
     """Source files behind ``"cvsim6.module:function"``: its module and every package
-    module that module imports, transitively (cvsim6.codegraph).
-
-    Rules declare them as the input named ``code``, so that a change of the code that
-    produces an output reruns the rule (Snakemake compares checksums of small inputs);
-    call.py does not pass ``code`` to the function.
-    """
+    module that module imports, transitively, with the packages' ``__init__.py``
+    (cvsim6.workflow.codegraph)."""
     return _codegraph.module_closure(function.split(":")[0], PACKAGE_DIR)
+
+
+def attach_code_inputs():
+    """Add the input ``code`` to each step that calls a package function (the ``function``
+    param, the one place it is named): the source files of that function's import closure.
+    A change of the code that produces an output then reruns that step and no other
+    (Snakemake compares checksums of small inputs); call.py does not pass ``code`` on.
+    Called once at the end of the Snakefile, after all steps are defined."""
+    for each in workflow.rules:
+        function = dict(each.params.items()).get("function")
+        if function is not None:
+            # what Snakemake's own `input:` directive sets before adding files
+            each.input_modifier = workflow.modifier.path_modifier
+            each.set_input(code=code_for(function))
 
 
 def study_priority(structural, ehr):
@@ -114,7 +124,7 @@ def published_dir(wildcards=None):
 
 
 def scorecard_files(source):
-    """The workflow outputs the scorecard reads for one network source (cvsim6.scorecard.HEADLINE_FILES)."""
+    """The workflow outputs the scorecard reads for one network source (cvsim6.reporting.scorecard.HEADLINE_FILES)."""
     root = NETWORK_RESULTS[source]
     return dict(
         stiffness=f"{RESULTS}/stiffness/sr_extremes.csv",

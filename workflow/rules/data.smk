@@ -10,8 +10,6 @@ wildcard_constraints:
 
 
 rule sample_prior:
-    input:
-        code=code_for("cvsim6.datasets:sample_prior"),
     output:
         parameters=f"{DATA}/{{study}}/parameters.parquet",
         shards=scatter.simulate(
@@ -29,7 +27,7 @@ rule sample_prior:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.datasets:sample_prior",
+        function="cvsim6.data.datasets:sample_prior",
         prior=lambda w: config["data"]["studies"][w.study]["prior"],
         n_samples=lambda w: config["data"]["studies"][w.study]["n_samples"],
         seed=config["seed"],
@@ -40,7 +38,6 @@ rule sample_prior:
 
 rule simulate_shard:
     input:
-        code=code_for("cvsim6.datasets:simulate_shard"),
         parameters=f"{DATA}/{{study}}/shards/parameters_{{scatteritem}}.parquet",
     output:
         output=f"{DATA}/{{study}}/shards/simulated_{{scatteritem}}.parquet",
@@ -56,7 +53,7 @@ rule simulate_shard:
         mem_mb=1500,
         runtime=30,
     params:
-        function="cvsim6.datasets:simulate_shard",
+        function="cvsim6.data.datasets:simulate_shard",
         shard=lambda w: w.scatteritem,
         simulator=config["simulator"],
     script:
@@ -65,7 +62,6 @@ rule simulate_shard:
 
 rule gather_study:
     input:
-        code=code_for("cvsim6.datasets:gather_study"),
         shards=gather.simulate(
             "results/data/{{study}}/shards/simulated_{scatteritem}.parquet"
         ),
@@ -87,7 +83,7 @@ rule gather_study:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.datasets:gather_study",
+        function="cvsim6.data.datasets:gather_study",
         study=lambda w: w.study,
         split=lambda w: config["data"]["studies"][w.study]["split"],
         prior=lambda w: config["data"]["studies"][w.study]["prior"],
@@ -100,7 +96,6 @@ rule gather_study:
 
 rule data_histograms:
     input:
-        code=code_for("cvsim6.datasets:plot_histograms"),
         train=rules.gather_study.output.train,
         test=rules.gather_study.output.test,
         validation=rules.gather_study.output.validation,
@@ -128,7 +123,7 @@ rule data_histograms:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.datasets:plot_histograms",
+        function="cvsim6.data.datasets:plot_histograms",
         study=lambda w: w.study,
     script:
         "../scripts/call.py"

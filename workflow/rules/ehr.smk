@@ -21,7 +21,7 @@ rule download_ehr:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.ehr:download_ehr",
+        function="cvsim6.data.ehr:download_ehr",
         url=config["ehr_data"]["url"],
         sha256=config["ehr_data"]["sha256"],
     script:
@@ -30,7 +30,6 @@ rule download_ehr:
 
 rule ehr_patients:
     input:
-        code=code_for("cvsim6.ehr:write_patient_selection"),
         csv=ehr_csv,
     output:
         patients=f"{EHR}/patients.csv",
@@ -47,14 +46,13 @@ rule ehr_patients:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.ehr:write_patient_selection",
+        function="cvsim6.data.ehr:write_patient_selection",
     script:
         "../scripts/call.py"
 
 
 rule invert_ehr_patients:
     input:
-        code=code_for("cvsim6.ehr_study:invert_ehr_patients"),
         patients=rules.ehr_patients.output.patients,
         flow=f"{MODELS}/ehr/flow_delta{{delta}}.pt",
         encoder_decoder=f"{MODELS}/ehr/encoder_decoder_delta{{delta}}.pt",
@@ -73,7 +71,7 @@ rule invert_ehr_patients:
         mem_mb=4000,
         runtime=120,
     params:
-        function="cvsim6.ehr_study:invert_ehr_patients",
+        function="cvsim6.studies.ehr:invert_ehr_patients",
         noise_level=lambda w: float(w.delta),
         n_latent=config["ehr_study"]["n_latent"],
         n_flow_samples=config["ehr_study"]["n_flow_samples"],
@@ -87,7 +85,6 @@ rule invert_ehr_patients:
 
 rule ehr_error_table:
     input:
-        code=code_for("cvsim6.ehr_study:ehr_error_table"),
         patients=rules.ehr_patients.output.patients,
         predictions=expand(
             f"{NET_EHR}/predictions_delta{{delta}}.parquet",
@@ -107,14 +104,13 @@ rule ehr_error_table:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.ehr_study:ehr_error_table",
+        function="cvsim6.studies.ehr:ehr_error_table",
     script:
         "../scripts/call.py"
 
 
 rule ehr_ood_table:
     input:
-        code=code_for("cvsim6.ehr_study:ood_table"),
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
         csv=f"{NET_TABLES}/ehr_ood_delta{{delta}}.csv",
@@ -130,14 +126,13 @@ rule ehr_ood_table:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.ehr_study:ood_table",
+        function="cvsim6.studies.ehr:ood_table",
     script:
         "../scripts/call.py"
 
 
 rule ehr_patient_figure:
     input:
-        code=code_for("cvsim6.ehr_study:ehr_patient_figure"),
         patients=rules.ehr_patients.output.patients,
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
@@ -157,6 +152,6 @@ rule ehr_patient_figure:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.ehr_study:ehr_patient_figure",
+        function="cvsim6.studies.ehr:ehr_patient_figure",
     script:
         "../scripts/call.py"

@@ -2,8 +2,6 @@
 
 
 rule input_parameter_table:
-    input:
-        code=code_for("cvsim6.tables:write_input_table"),
     output:
         csv=f"{TABLES}/input_parameters.csv",
         md=report(
@@ -22,14 +20,12 @@ rule input_parameter_table:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.tables:write_input_table",
+        function="cvsim6.reporting.tables:write_input_table",
     script:
         "../scripts/call.py"
 
 
 rule output_parameter_table:
-    input:
-        code=code_for("cvsim6.tables:write_output_table"),
     output:
         csv=f"{TABLES}/output_parameters.csv",
         md=report(
@@ -48,6 +44,6 @@ rule output_parameter_table:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.tables:write_output_table",
+        function="cvsim6.reporting.tables:write_output_table",
     script:
         "../scripts/call.py"

@@ -20,7 +20,7 @@ rule fetch_published_networks:
         mem_mb=500,
         runtime=10,
     params:
-        function="cvsim6.published:fetch_published_networks",
+        function="cvsim6.nets.published:fetch_published_networks",
         base_url=config["networks"]["published"]["url"],
     script:
         "../scripts/call.py"
@@ -32,7 +32,6 @@ for _study in STUDIES:
         name:
             f"convert_published_{_study}"
         input:
-            code=code_for("cvsim6.published:convert_published_study"),
             directory=published_dir,
         output:
             **model_files(_study, PUBLISHED_MODELS),
@@ -47,7 +46,7 @@ for _study in STUDIES:
             mem_mb=1000,
             runtime=5,
         params:
-            function="cvsim6.published:convert_published_study",
+            function="cvsim6.nets.published:convert_published_study",
             study=_study,
             noise_levels=config["training"]["studies"][_study]["noise_levels"],
         script:

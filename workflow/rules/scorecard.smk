@@ -5,7 +5,6 @@
 rule reproduction_scorecard:
     input:
         **scorecard_files(NETWORK_SOURCE),
-        code=code_for("cvsim6.scorecard:write_scorecard"),
     output:
         csv=f"{RESULTS}/report/reproduction.csv",
         md=report(
@@ -24,7 +23,7 @@ rule reproduction_scorecard:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.scorecard:write_scorecard",
+        function="cvsim6.reporting.scorecard:write_scorecard",
         source=NETWORK_SOURCE,
         other_sources={
             s: scorecard_files(s) for s in NETWORK_RESULTS if s != NETWORK_SOURCE

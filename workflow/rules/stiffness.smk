@@ -6,8 +6,6 @@ STIFFNESS = f"{RESULTS}/stiffness"
 
 
 rule stiffness_eigen:
-    input:
-        code=code_for("cvsim6.stiffness:eigen_analysis"),
     output:
         eigenvalues=f"{STIFFNESS}/eigenvalues.csv",
         trajectory=f"{STIFFNESS}/trajectory.csv",
@@ -22,7 +20,7 @@ rule stiffness_eigen:
         mem_mb=1000,
         runtime=10,
     params:
-        function="cvsim6.stiffness:eigen_analysis",
+        function="cvsim6.model.stiffness:eigen_analysis",
         rtol=config["stiffness"]["rtol"],
         samples_per_cycle=config["stiffness"]["samples_per_cycle"],
         zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
@@ -33,7 +31,6 @@ rule stiffness_eigen:
 
 rule stiffness_extremes:
     input:
-        code=code_for("cvsim6.stiffness:extremes"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
         trajectory=rules.stiffness_eigen.output.trajectory,
     output:
@@ -55,7 +52,7 @@ rule stiffness_extremes:
         mem_mb=500,
         runtime=5,
     params:
-        function="cvsim6.stiffness:extremes",
+        function="cvsim6.model.stiffness:extremes",
         zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
         sr_tol=config["stiffness"]["sr_tol"],
     script:
@@ -64,7 +61,6 @@ rule stiffness_extremes:
 
 rule stiffness_eigenvalue_figure:
     input:
-        code=code_for("cvsim6.stiffness_plots:eigenvalue_figure"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
     output:
         png=report(
@@ -84,7 +80,7 @@ rule stiffness_eigenvalue_figure:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.stiffness_plots:eigenvalue_figure",
+        function="cvsim6.reporting.stiffness_figures:eigenvalue_figure",
         zero_eigenvalue_tol=config["stiffness"]["zero_eigenvalue_tol"],
     script:
         "../scripts/call.py"
@@ -92,7 +88,6 @@ rule stiffness_eigenvalue_figure:
 
 rule stiffness_radar_figure:
     input:
-        code=code_for("cvsim6.stiffness_plots:radar_figure"),
         eigenvectors=rules.stiffness_extremes.output.eigenvectors,
     output:
         png=report(
@@ -114,7 +109,7 @@ rule stiffness_radar_figure:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.stiffness_plots:radar_figure",
+        function="cvsim6.reporting.stiffness_figures:radar_figure",
         instant=lambda wildcards: f"SR {wildcards.extreme}",
     script:
         "../scripts/call.py"
@@ -122,7 +117,6 @@ rule stiffness_radar_figure:
 
 rule stiffness_sr_figure:
     input:
-        code=code_for("cvsim6.stiffness_plots:sr_dynamics_figure"),
         eigenvalues=rules.stiffness_eigen.output.eigenvalues,
         trajectory=rules.stiffness_eigen.output.trajectory,
     output:
@@ -143,14 +137,12 @@ rule stiffness_sr_figure:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.stiffness_plots:sr_dynamics_figure",
+        function="cvsim6.reporting.stiffness_figures:sr_dynamics_figure",
     script:
         "../scripts/call.py"
 
 
 rule stiffness_rk4:
-    input:
-        code=code_for("cvsim6.stiffness:rk4_study"),
     output:
         series=f"{STIFFNESS}/rk4_series.csv",
         csv=f"{STIFFNESS}/rk4_errors.csv",
@@ -170,7 +162,7 @@ rule stiffness_rk4:
         mem_mb=1000,
         runtime=10,
     params:
-        function="cvsim6.stiffness:rk4_study",
+        function="cvsim6.model.stiffness:rk4_study",
         rtol=config["stiffness"]["rtol"],
         rk4_steps=config["stiffness"]["rk4_steps"],
         samples_per_cycle=config["stiffness"]["samples_per_cycle"],
@@ -180,7 +172,6 @@ rule stiffness_rk4:
 
 rule stiffness_rk4_figure:
     input:
-        code=code_for("cvsim6.stiffness_plots:rk4_figure"),
         series=rules.stiffness_rk4.output.series,
     output:
         png=report(
@@ -200,6 +191,6 @@ rule stiffness_rk4_figure:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.stiffness_plots:rk4_figure",
+        function="cvsim6.reporting.stiffness_figures:rk4_figure",
     script:
         "../scripts/call.py"

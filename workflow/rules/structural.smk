@@ -8,7 +8,6 @@ S_MODELS = f"{MODELS}/structural"
 
 rule structural_inversion_table:
     input:
-        code=code_for("cvsim6.structural_study:inversion_table"),
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         validation=f"{DATA}/structural/validation.parquet",
     output:
@@ -26,7 +25,7 @@ rule structural_inversion_table:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.structural_study:inversion_table",
+        function="cvsim6.studies.structural:inversion_table",
         simulator=config["simulator"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
@@ -36,7 +35,6 @@ rule structural_inversion_table:
 
 rule structural_observation:
     input:
-        code=code_for("cvsim6.structural_study:choose_observation"),
         flow=f"{S_MODELS}/flow_delta0.pt",
     output:
         csv=f"{NET_TABLES}/structural_observation.csv",
@@ -52,7 +50,7 @@ rule structural_observation:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.structural_study:choose_observation",
+        function="cvsim6.studies.structural:choose_observation",
         source=SCFG["observation"],
         n_flow_samples=SCFG["observation_flow_samples"],
         seed=config["seed"],
@@ -62,7 +60,6 @@ rule structural_observation:
 
 rule structural_manifold:
     input:
-        code=code_for("cvsim6.structural_study:sample_manifold"),
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         observation=rules.structural_observation.output.csv,
     output:
@@ -78,7 +75,7 @@ rule structural_manifold:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.structural_study:sample_manifold",
+        function="cvsim6.studies.structural:sample_manifold",
         n_samples=SCFG["n_manifold"],
         corrector_steps=config["structural_study"]["corrector_steps"],
         seed=config["seed"],
@@ -88,7 +85,6 @@ rule structural_manifold:
 
 rule structural_reconstruction:
     input:
-        code=code_for("cvsim6.structural_study:manifold_reconstruction"),
         samples=rules.structural_manifold.output.samples,
         observation=rules.structural_observation.output.csv,
         emulator=f"{S_MODELS}/emulator.pt",
@@ -112,7 +108,7 @@ rule structural_reconstruction:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.structural_study:manifold_reconstruction",
+        function="cvsim6.studies.structural:manifold_reconstruction",
         simulator=config["simulator"],
         n_reconstruct=SCFG["n_reconstruct"],
         n_traces=SCFG["n_traces"],
@@ -125,7 +121,6 @@ rule structural_reconstruction:
 
 rule structural_parallel_coordinates:
     input:
-        code=code_for("cvsim6.structural_study:parallel_coordinates"),
         samples=rules.structural_manifold.output.samples,
     output:
         figure=report(
@@ -144,7 +139,7 @@ rule structural_parallel_coordinates:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.structural_study:parallel_coordinates",
+        function="cvsim6.studies.structural:parallel_coordinates",
         prior=config["data"]["studies"]["structural"]["prior"],
         n_lines=SCFG["n_reconstruct"],
     script:
@@ -153,7 +148,6 @@ rule structural_parallel_coordinates:
 
 rule structural_manifold_svd:
     input:
-        code=code_for("cvsim6.structural_study:manifold_svd_figure"),
         samples=rules.structural_manifold.output.samples,
     output:
         csv=f"{STRUCT}/manifold_svd.csv",
@@ -174,14 +168,13 @@ rule structural_manifold_svd:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.structural_study:manifold_svd_figure",
+        function="cvsim6.studies.structural:manifold_svd_figure",
     script:
         "../scripts/call.py"
 
 
 rule structural_missing_data:
     input:
-        code=code_for("cvsim6.structural_study:missing_data"),
         flow=f"{S_MODELS}/flow_delta0.pt",
         encoder_decoder=f"{S_MODELS}/encoder_decoder_delta0.pt",
         observation=rules.structural_observation.output.csv,
@@ -205,7 +198,7 @@ rule structural_missing_data:
         mem_mb=4000,
         runtime=30,
     params:
-        function="cvsim6.structural_study:missing_data",
+        function="cvsim6.studies.structural:missing_data",
         simulator=config["simulator"],
         missing=SCFG["missing"],
         n_flow_samples=SCFG["missing_flow_samples"],
@@ -219,7 +212,6 @@ rule structural_missing_data:
 
 rule structural_jacobian:
     input:
-        code=code_for("cvsim6.structural_study:jacobian_check"),
         samples=rules.structural_manifold.output.samples,
     output:
         csv=f"{NET_TABLES}/structural_local_identifiability.csv",
@@ -241,7 +233,7 @@ rule structural_jacobian:
         mem_mb=2000,
         runtime=15,
     params:
-        function="cvsim6.structural_study:jacobian_check",
+        function="cvsim6.studies.structural:jacobian_check",
         prior=config["data"]["studies"]["structural"]["prior"],
         simulator=config["simulator"],
         n_points=SCFG["jacobian_points"],

@@ -16,8 +16,6 @@ wildcard_constraints:
 
 
 rule network_tables:
-    input:
-        code=code_for("cvsim6.network_tables:write_network_tables"),
     output:
         architecture_csv=f"{TABLES}/{{study}}_architectures.csv",
         architecture_md=f"{TABLES}/{{study}}_architectures.md",
@@ -34,7 +32,7 @@ rule network_tables:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.network_tables:write_network_tables",
+        function="cvsim6.reporting.network_tables:write_network_tables",
         training=config["training"],
         study=lambda w: w.study,
     script:
@@ -43,7 +41,6 @@ rule network_tables:
 
 rule train_emulator:
     input:
-        code=code_for("cvsim6.training:train_emulator"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
     output:
@@ -61,7 +58,7 @@ rule train_emulator:
         mem_mb=4000,
         runtime=240,
     params:
-        function="cvsim6.training:train_emulator",
+        function="cvsim6.training.core:train_emulator",
         hyper=lambda w: config["training"]["studies"][w.study]["emulator"],
         seed=config["seed"],
         device=config["training"]["device"],
@@ -72,7 +69,6 @@ rule train_emulator:
 
 rule train_flow:
     input:
-        code=code_for("cvsim6.training:train_flow"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
     output:
@@ -90,7 +86,7 @@ rule train_flow:
         mem_mb=4000,
         runtime=240,
     params:
-        function="cvsim6.training:train_flow",
+        function="cvsim6.training.core:train_flow",
         hyper=lambda w: config["training"]["studies"][w.study]["flow"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],
@@ -102,7 +98,6 @@ rule train_flow:
 
 rule train_encoder_decoder_candidate:
     input:
-        code=code_for("cvsim6.training:train_encoder_decoder"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
         emulator=rules.train_emulator.output.model,
@@ -121,7 +116,7 @@ rule train_encoder_decoder_candidate:
         mem_mb=4000,
         runtime=120,
     params:
-        function="cvsim6.training:train_encoder_decoder",
+        function="cvsim6.training.core:train_encoder_decoder",
         candidate=lambda w: int(w.candidate),
         model=lambda w: f"{TRAINED_MODELS}/{w.study}/encoder_decoder_delta{w.delta}.pt",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
@@ -135,7 +130,6 @@ rule train_encoder_decoder_candidate:
 
 rule train_encoder_decoder:
     input:
-        code=code_for("cvsim6.training:train_encoder_decoder"),
         train=f"{DATA}/{{study}}/train.parquet",
         test=f"{DATA}/{{study}}/test.parquet",
         emulator=rules.train_emulator.output.model,
@@ -155,7 +149,7 @@ rule train_encoder_decoder:
         mem_mb=4000,
         runtime=480,
     params:
-        function="cvsim6.training:train_encoder_decoder",
+        function="cvsim6.training.core:train_encoder_decoder",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],
@@ -167,7 +161,6 @@ rule train_encoder_decoder:
 
 rule plot_training_losses:
     input:
-        code=code_for("cvsim6.loss_plots:plot_training_losses"),
         losses=f"{TRAINING}/{{study}}/{{network}}_losses.csv",
         model=f"{TRAINED_MODELS}/{{study}}/{{network}}.pt",
     output:
@@ -188,7 +181,7 @@ rule plot_training_losses:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.loss_plots:plot_training_losses",
+        function="cvsim6.reporting.loss_figures:plot_training_losses",
         network=lambda w: w.network,
         study=lambda w: w.study,
     script:
@@ -197,7 +190,6 @@ rule plot_training_losses:
 
 rule emulator_validation:
     input:
-        code=code_for("cvsim6.evaluation:emulator_validation"),
         model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
@@ -214,7 +206,7 @@ rule emulator_validation:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.evaluation:emulator_validation",
+        function="cvsim6.studies.evaluation:emulator_validation",
         study=lambda w: w.study,
     script:
         "../scripts/call.py"
@@ -222,7 +214,6 @@ rule emulator_validation:
 
 rule emulator_l2_histogram:
     input:
-        code=code_for("cvsim6.evaluation:emulator_l2_histogram"),
         model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
@@ -244,7 +235,7 @@ rule emulator_l2_histogram:
         mem_mb=2000,
         runtime=5,
     params:
-        function="cvsim6.evaluation:emulator_l2_histogram",
+        function="cvsim6.studies.evaluation:emulator_l2_histogram",
         study=lambda w: w.study,
     script:
         "../scripts/call.py"
@@ -252,7 +243,6 @@ rule emulator_l2_histogram:
 
 rule flow_marginals:
     input:
-        code=code_for("cvsim6.evaluation:flow_marginals"),
         flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
@@ -273,7 +263,7 @@ rule flow_marginals:
         mem_mb=2000,
         runtime=5,
     params:
-        function="cvsim6.evaluation:flow_marginals",
+        function="cvsim6.studies.evaluation:flow_marginals",
         n_samples=20000,
         seed=config["seed"],
     script:

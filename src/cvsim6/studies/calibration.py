@@ -1,0 +1,271 @@
+"""Calibration of inVAErt and NPE on simulated cases of the EHR prior, as workflow steps.
+
+Held-out cases: ``n_cases`` rows of the EHR study's simulated validation split (the same
+rows, and the same standard-normal noise draw scaled by delta, at every noise level), with
+noisy observations y' = y + eta(delta) in physical units. Each method gives ``n_samples``
+parameter sets per case: inVAErt decodes y' with latent draws w ~ N(0, I) (its spread is a
+sample of the non-identifiable manifold of y', not a Bayesian posterior), NPE samples its
+posterior q(theta | y'). The diagnostics are those of :mod:`cvsim6.inference.calibration`.
+
+Non-identifiable parameters are marked by the structural study's local check
+(:mod:`cvsim6.model.identifiability`): simulator Jacobians at the cases' true parameters, a
+parameter's mean null-space share above ``nonidentifiable_share``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from cvsim6.inference import calibration
+from cvsim6.model import identifiability
+from cvsim6.inference import inversion
+from cvsim6.nets import networks as nw
+from cvsim6.data.datasets import load_split
+from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.inference.npe import load_npe
+from cvsim6.reporting.figures import save_figure
+from cvsim6.data.priors import prior_bounds
+from cvsim6.registry import PARAMETER_NAMES
+from cvsim6.reporting.tables import to_markdown
+
+log = logging.getLogger(__name__)
+
+#: The two inverse methods compared, in table and legend order.
+METHODS = ("inVAErt", "NPE")
+_COLORS = {"inVAErt": "tab:blue", "NPE": "tab:orange"}
+
+
+def calibration_cases(validation: str, n_cases: int, noise_level: float, seed: int
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n_cases`` validation rows picked with ``seed`` (the same for every noise level):
+    true parameters (n, 23), clean outputs (n, 16) and noisy observations (n, 16)."""
+    v, y = load_split(validation)
+    if not 1 <= int(n_cases) <= len(v):
+        raise ValueError(f"n_cases = {n_cases} must be between 1 and the {len(v)} validation rows")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 31]))
+    pick = np.sort(rng.choice(len(v), size=int(n_cases), replace=False))
+    gen = torch.Generator().manual_seed(int(np.random.SeedSequence([int(seed), 37]).generate_state(1)[0]))
+    unit_noise = nw.draw_noise(len(pick), 1.0, gen).numpy()  # delta = 1: noise std s
+    return v[pick], y[pick], y[pick] + float(noise_level) * unit_noise
+
+
+def calibration_samples(validation: str, encoder_decoder: str, npe: str, samples: str, noise_level: float,
+                        n_cases: int, n_samples: int, seed: int,
+                        corrector_steps: int = DEFAULT_CORRECTOR_STEPS, threads: int = 1) -> None:
+    """Workflow step: the cases of one noise level and ``n_samples`` parameter sets per case
+    from each method, in one ``.npz`` (``theta``, ``y_obs``, ``inVAErt``, ``NPE`` (n, N, 23),
+    ``noise_level``, ``seconds_<method>``: wall time of the sampling)."""
+    torch.set_num_threads(int(threads))
+    theta, _, y_obs = calibration_cases(validation, n_cases, noise_level, seed)
+    t0 = time.perf_counter()
+    inv = inversion.decode_latent(load_model(encoder_decoder), y_obs, int(n_samples), seed=seed,
+                                  corrector_steps=corrector_steps)
+    t1 = time.perf_counter()
+    npe_samples = load_npe(npe).sample(y_obs, int(n_samples), seed=seed)
+    t2 = time.perf_counter()
+    Path(samples).parent.mkdir(parents=True, exist_ok=True)
+    with open(samples, "wb") as fh:
+        np.savez_compressed(fh, theta=theta, y_obs=y_obs, inVAErt=inv, NPE=npe_samples,
+                            noise_level=float(noise_level), seconds_inVAErt=t1 - t0, seconds_NPE=t2 - t1)
+    log.info("delta=%g: %d cases x %d samples; inVAErt %.1f s, NPE %.1f s", noise_level, len(theta),
+             n_samples, t1 - t0, t2 - t1)
+
+
+def nonidentifiable_parameters(theta: np.ndarray, prior: dict, simulator: dict, n_points: int,
+                               rel_step: float, rank_rtol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean null-space share per parameter (23,) over the Jacobians at the first ``n_points``
+    rows of ``theta``, and the local ranks found there."""
+    lo, hi = prior_bounds(prior)
+    f = identifiability.simulator_outputs(simulator["steps_per_cycle"])
+    J = identifiability.finite_difference_jacobian(f, theta[:int(n_points)], hi - lo, rel_step=rel_step)
+    ok = np.isfinite(J).all(axis=(1, 2))
+    if not ok.any():
+        raise ValueError("no finite simulator Jacobian at the calibration cases")
+    _, ranks, shares = identifiability.local_identifiability(identifiability.scaled_jacobian(J[ok], hi - lo),
+                                                            rank_rtol)
+    return shares.mean(axis=0), ranks
+
+
+def _losses_seconds(paths: list[str]) -> dict[float, float]:
+    """Training seconds per noise level from loss CSVs named ``..._delta<d>_losses.csv``."""
+    out: dict[float, float] = {}
+    for p in paths:
+        d = float(Path(p).name.split("_delta")[1].split("_")[0])
+        out[d] = out.get(d, 0.0) + float(pd.read_csv(p)["seconds"].sum())
+    return out
+
+
+def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md: str,
+                        coverage_figure: str, rank_figure: str, recovery_figure: str, prior: dict,
+                        simulator: dict, figure_noise_level: float, identifiability_points: int,
+                        rel_step: float, rank_rtol: float, nonidentifiable_share: float, seed: int,
+                        invaert_losses: list[str] | tuple = ()) -> None:
+    """Workflow step: the calibration table (one row per method, delta and parameter) and its
+    Markdown summary, and the three figures (coverage curves for every delta; rank ECDFs and
+    recovery at ``figure_noise_level``)."""
+    lo, hi = prior_bounds(prior)
+    runs = [dict(np.load(p)) for p in samples]
+    runs.sort(key=lambda r: float(r["noise_level"]))
+    share, ranks = nonidentifiable_parameters(runs[0]["theta"], prior, simulator, identifiability_points,
+                                              rel_step, rank_rtol)
+    nonid = share > float(nonidentifiable_share)
+    log.info("local Jacobian ranks at %d cases: %s; non-identifiable: %s", len(ranks),
+             dict(zip(*np.unique(ranks, return_counts=True))), [n for n, b in zip(PARAMETER_NAMES, nonid) if b])
+    rows, curves = [], {}
+    for r in runs:
+        d = float(r["noise_level"])
+        for m in METHODS:
+            diag = calibration.diagnostics(r["theta"], r[m], lo, hi)
+            tarp = calibration.tarp(r["theta"], r[m], lo, hi, seed=seed)
+            curves[(m, d)] = dict(diag=diag, tarp=tarp)
+            for j, name in enumerate(PARAMETER_NAMES):
+                rows.append({"method": m, "noise_level": d, "parameter": name, "non_identifiable": bool(nonid[j]),
+                             "null_space_share": share[j], "sbc_pvalue": diag["sbc_pvalue"][j],
+                             "coverage_error": diag["coverage_error"][j], "contraction": diag["contraction"][j],
+                             "nrmse": diag["nrmse"][j], "tarp_atc": tarp["atc"], "tarp_ks_pvalue": tarp["ks_pvalue"],
+                             "n_cases": len(r["theta"]), "n_samples": r[m].shape[1]})
+    table = pd.DataFrame(rows)
+    Path(csv).parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(csv, index=False)
+
+    npe_info = {float(info.get("noise_level", np.nan)): info for info in (load_npe(p).info for p in npe_models)}
+    inv_seconds = _losses_seconds(list(invaert_losses))
+    summary = []
+    for (m, d), grp in table.groupby(["method", "noise_level"], sort=False):
+        run = next(r for r in runs if float(r["noise_level"]) == d)
+        summary.append({
+            "Method": m, "delta": d,
+            "SBC p < 0.01 (of 23)": int((grp["sbc_pvalue"] < 0.01).sum()),
+            "Coverage error (mean)": grp["coverage_error"].mean(),
+            "TARP ATC": grp["tarp_atc"].iloc[0],
+            "Contraction (identifiable)": grp.loc[~grp["non_identifiable"], "contraction"].mean(),
+            "Contraction (non-identifiable)": grp.loc[grp["non_identifiable"], "contraction"].mean(),
+            "NRMSE (identifiable)": grp.loc[~grp["non_identifiable"], "nrmse"].mean(),
+            "NRMSE (non-identifiable)": grp.loc[grp["non_identifiable"], "nrmse"].mean(),
+            "Sampling (s)": float(run[f"seconds_{m}"]),
+            "Training (s)": (npe_info.get(d, {}).get("train_seconds", np.nan) if m == "NPE"
+                             else inv_seconds.get(d, np.nan)),
+        })
+    summary = pd.DataFrame(summary)
+    fig_d = float(figure_noise_level)
+    per_param = table[table["noise_level"] == fig_d].pivot(index="parameter", columns="method")
+    detail = pd.DataFrame({"Parameter": list(PARAMETER_NAMES),
+                           "Non-identifiable": ["yes" if b else "" for b in nonid], "Null-space share": share})
+    for col, label in (("sbc_pvalue", "SBC p"), ("coverage_error", "Coverage error"),
+                       ("contraction", "Contraction"), ("nrmse", "NRMSE")):
+        for m in METHODS:
+            detail[f"{label} ({m})"] = per_param.loc[list(PARAMETER_NAMES), (col, m)].to_numpy()
+    n_cases, n_samples = int(table["n_cases"].iloc[0]), int(table["n_samples"].iloc[0])
+    text = to_markdown(summary, f"Calibration on {n_cases} simulated validation cases of the EHR prior, "
+                                f"{n_samples} samples per case and method. SBC: KS test of rank uniformity; "
+                                "coverage error: mean |empirical - nominal| of central intervals at levels "
+                                "0.05..0.95; TARP ATC: 0 calibrated, < 0 over-confident, > 0 under-confident; "
+                                "contraction 1 - Var_post/Var_prior; NRMSE of the posterior mean in prior "
+                                "standard deviations; non-identifiable: mean Jacobian null-space share > "
+                                f"{nonidentifiable_share:g}. Training (s): NPE wall time; inVAErt: its "
+                                "encoder/decoder epochs (not the emulator it trains through, shared by all noise "
+                                "levels; empty when the networks were not trained here)")
+    text += "\n" + to_markdown(detail, f"Per parameter at delta = {fig_d:g}")
+    Path(md).write_text(text, encoding="utf-8")
+    _coverage_figure(curves, sorted({d for _, d in curves}), coverage_figure)
+    fig_run = next((r for r in runs if float(r["noise_level"]) == fig_d), runs[0])
+    _rank_figure({m: curves[(m, float(fig_run["noise_level"]))]["diag"]["ranks"] for m in METHODS},
+                 fig_run["inVAErt"].shape[1], nonid, float(fig_run["noise_level"]), rank_figure)
+    _recovery_figure(fig_run, nonid, lo, hi, recovery_figure)
+
+
+def _coverage_figure(curves: dict, deltas: list[float], path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    levels = calibration.COVERAGE_LEVELS
+    fig, axes = plt.subplots(1, len(deltas), figsize=(3.6 * len(deltas), 3.8), squeeze=False, sharey=True)
+    for ax, d in zip(axes[0], deltas):
+        ax.plot([0, 1], [0, 1], color="k", lw=0.8, ls=":")
+        for m in METHODS:
+            c = curves[(m, d)]
+            cov = c["diag"]["coverage"]
+            ax.plot(levels, cov, color=_COLORS[m], lw=0.5, alpha=0.2)
+            ax.plot(levels, cov.mean(axis=1), color=_COLORS[m], lw=2.2, label=f"{m}: marginal (mean of 23)")
+            ax.plot(c["tarp"]["alpha"], c["tarp"]["ecp"], color=_COLORS[m], lw=1.4, ls="--",
+                    label=f"{m}: TARP (joint)")
+        ax.set_title(f"delta = {d:g}")
+        ax.set_xlabel("nominal level of the central interval")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("empirical coverage")
+    axes[0, -1].legend(fontsize=7, loc="lower right")
+    fig.suptitle("Coverage of the true parameters (thin lines: one per parameter; dotted: calibrated)")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _panel_title(ax, name: str, nonid: bool) -> None:
+    ax.set_title(name + (" (non-id.)" if nonid else ""), fontsize=9, color="tab:red" if nonid else "k")
+
+
+def _rank_figure(ranks: dict, n_samples: int, nonid: np.ndarray, delta: float, path: str) -> None:
+    """Per parameter, ECDF of the normalized ranks minus the uniform CDF, with the 95% KS band."""
+    import matplotlib.pyplot as plt
+
+    ncols = 6
+    nrows = math.ceil(len(PARAMETER_NAMES) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.1 * nrows), squeeze=False, sharex=True)
+    grid = np.linspace(0, 1, 201)
+    n_cases = len(next(iter(ranks.values())))
+    band = 1.358 / math.sqrt(n_cases)
+    for j, ax in enumerate(axes.flat):
+        if j >= len(PARAMETER_NAMES):
+            ax.set_visible(False)
+            continue
+        ax.fill_between(grid, -band, band, color="0.85", lw=0)
+        for m in METHODS:
+            u = np.sort((ranks[m][:, j] + 0.5) / (n_samples + 1))
+            ax.plot(grid, np.searchsorted(u, grid, side="right") / len(u) - grid, color=_COLORS[m], lw=1.2,
+                    label=m)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylim(-1, 1)
+        ax.tick_params(labelsize=7)
+        _panel_title(ax, PARAMETER_NAMES[j], bool(nonid[j]))
+    axes.flat[0].legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"SBC rank ECDF minus uniform, delta = {delta:g} (gray: 95% band of a calibrated sampler; "
+                 "above 0 on the left: true values sit low in the samples)", fontsize=10)
+    fig.supxlabel("normalized rank of the true value among the samples", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _recovery_figure(run: dict, nonid: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: str) -> None:
+    """Per parameter, the posterior mean against the true value (both in prior units [0, 1])."""
+    import matplotlib.pyplot as plt
+
+    ncols = 6
+    nrows = math.ceil(len(PARAMETER_NAMES) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.4 * nrows), squeeze=False)
+    theta = (run["theta"] - lo) / (hi - lo)
+    for j, ax in enumerate(axes.flat):
+        if j >= len(PARAMETER_NAMES):
+            ax.set_visible(False)
+            continue
+        ax.plot([0, 1], [0, 1], color="k", lw=0.6, ls=":")
+        for m in METHODS:
+            mean = (run[m][:, :, j].mean(axis=1) - lo[j]) / (hi[j] - lo[j])
+            ax.scatter(theta[:, j], mean, s=3, alpha=0.5, color=_COLORS[m], label=m, lw=0)
+        ax.set_xlim(-0.05, 1.05)
+        ax.set_ylim(-0.25, 1.25)
+        ax.tick_params(labelsize=7)
+        _panel_title(ax, PARAMETER_NAMES[j], bool(nonid[j]))
+    axes.flat[0].legend(fontsize=7, markerscale=3, loc="upper left")
+    fig.suptitle(f"Recovery: posterior mean against the true value, delta = {float(run['noise_level']):g} "
+                 "(prior box scaled to [0, 1]; a flat cloud: the data do not inform the parameter)", fontsize=10)
+    fig.supxlabel("true value (fraction of the prior width)", fontsize=9)
+    fig.supylabel("posterior mean", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+

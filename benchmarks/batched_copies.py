@@ -7,7 +7,7 @@ times, one thread, the optimizer step (forward, backward, fused Adam with the co
 decay) of
 
 * the copies as the workflow trains them: G separate package networks
-  (:class:`cvsim6.nets.networks.RealNVP`, :class:`cvsim6.nets.networks.EncoderDecoder` with the
+  (:class:`cvsim6.nets.RealNVP`, :class:`cvsim6.nets.EncoderDecoder` with the
   re-evaluation term through an emulator of the study's architecture), one step each, and
 * one batched model holding the same G copies' weights,
 
@@ -30,7 +30,7 @@ import torch
 import yaml
 from torch import nn
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.training.core import make_optimizer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +55,7 @@ def grouped_mlp(mlps: list[nn.Sequential]) -> nn.Sequential:
 
 
 class GroupedFlow(nn.Module):
-    """G copies of a :class:`cvsim6.nets.networks.RealNVP` (train-mode forward, data -> latent)."""
+    """G copies of a :class:`cvsim6.nets.RealNVP` (train-mode forward, data -> latent)."""
 
     def __init__(self, flows: list[nw.RealNVP]):
         super().__init__()
@@ -101,7 +101,7 @@ class GroupedFlow(nn.Module):
 
 
 class GroupedEncoderDecoder(nn.Module):
-    """G copies of a :class:`cvsim6.nets.networks.EncoderDecoder`."""
+    """G copies of a :class:`cvsim6.nets.EncoderDecoder`."""
 
     def __init__(self, models: list[nw.EncoderDecoder]):
         super().__init__()

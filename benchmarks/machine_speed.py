@@ -102,7 +102,7 @@ def measure(study: str, network: str, cfg: dict, train: Path, test: Path, folder
             seed: int) -> float:
     """CPU seconds per epoch of ``network``, over ``epochs`` epochs (at least one test evaluation)."""
     from cvsim6.data import datasets
-    from cvsim6.nets import networks
+    from cvsim6 import nets as networks
     from cvsim6.training import core as training
 
     h = dict(cfg["training"]["studies"][study][network])

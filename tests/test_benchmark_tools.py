@@ -114,7 +114,7 @@ def test_batched_copies_compute_each_copys_loss_and_gradient():
     only, and the gradient of the summed loss is each network's own gradient, stacked."""
     import torch
 
-    from cvsim6.nets import networks as nw
+    from cvsim6 import nets as nw
 
     bc = _load("batched_copies")
     torch.manual_seed(0)

@@ -152,7 +152,7 @@ def test_invert_round_trip(tmp_path):
     """Saved (untrained) networks in the workflow's layout; partial observations in."""
     import torch
 
-    from cvsim6.nets import networks
+    from cvsim6 import nets as networks
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
@@ -223,7 +223,7 @@ def ehr_models(tmp_path_factory):
 
     from conftest import prior_sample
     from cvsim6.data import datasets
-    from cvsim6.nets import networks
+    from cvsim6 import nets as networks
 
     torch.manual_seed(0)
     v = prior_sample("ehr", 400, 5)
@@ -374,7 +374,7 @@ def test_invert_seed_reaches_every_draw(tmp_path, ehr_models):
     """Same --seed, same file, bit for bit (the OOD reference included, drawn from the flow);
     another seed, other reference draws."""
     from cvsim6.studies import ehr as ehr_study
-    from cvsim6.nets import networks
+    from cvsim6 import nets as networks
 
     models = ehr_models[0]
     src = tmp_path / "obs.csv"

@@ -36,7 +36,7 @@ def gaussian_twin():
     import torch
 
     from conftest import prior_sample
-    from cvsim6.nets import networks
+    from cvsim6 import nets as networks
     from cvsim6.model import solver
 
     torch.manual_seed(0)

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from cvsim6.inference import inversion
-from cvsim6.nets import networks
+from cvsim6 import nets as networks
 from cvsim6 import registry
 
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from cvsim6.reporting import loss_figures as lp
-from cvsim6.nets import networks
+from cvsim6 import nets as networks
 
 
 def test_divergence_epochs_flags_a_spike_and_its_recovery_but_not_a_falling_or_rising_curve():

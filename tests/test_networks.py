@@ -1,4 +1,4 @@
-"""inVAErt networks (cvsim6.nets.networks): sizes, Real-NVP bijectivity and log-det, losses, I/O."""
+"""inVAErt networks (cvsim6.nets): sizes, Real-NVP bijectivity and log-det, losses, I/O."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.registry import N_OUTPUTS, N_PARAMETERS, noise_std
 
 

@@ -19,7 +19,7 @@ from cvsim6.data import priors
 from cvsim6.nets import published
 from cvsim6 import registry
 from cvsim6.model import solver
-from cvsim6.nets.networks import load_model
+from cvsim6.nets import load_model
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 NETWORKS = SHARED / "paper_networks"

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from cvsim6.studies import evaluation
-from cvsim6.nets import networks
+from cvsim6 import nets as networks
 from cvsim6 import registry
 from cvsim6.studies import structural as structural_study
 

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 import torch
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.training import core as tr
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
 

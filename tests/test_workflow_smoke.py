@@ -19,7 +19,7 @@ import yaml
 from cvsim6.data import datasets
 from cvsim6.studies import ehr_methods
 from cvsim6.studies import ehr as ehr_study
-from cvsim6.nets import networks
+from cvsim6 import nets as networks
 from cvsim6 import paper_values
 from cvsim6.data import priors
 from cvsim6 import registry

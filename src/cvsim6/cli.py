@@ -51,7 +51,7 @@ from cvsim6.model import solver
 from cvsim6.data.datasets import load_split
 from cvsim6.studies.ehr import invert_observations, unit_message, unit_problems
 from cvsim6.model.equations import ParameterError
-from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES
 
 #: Cell texts read as blank (case-insensitive, after stripping spaces).

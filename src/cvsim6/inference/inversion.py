@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS
+from cvsim6.nets import DEFAULT_CORRECTOR_STEPS
 from cvsim6.registry import N_OUTPUTS
 
 

@@ -1,6 +1,6 @@
 """Neural posterior estimation (NPE, sbi) of the 23 parameters from the 16 outputs: the
 baseline beside inVAErt, trained on the same simulated training split with the same noise
-model, y' = y + eta, eta ~ N(0, diag((delta * s)^2)) (:func:`cvsim6.nets.networks.draw_noise`).
+model, y' = y + eta, eta ~ N(0, diag((delta * s)^2)) (:func:`cvsim6.nets.draw_noise`).
 
 sbi's NPE fits a conditional density q(theta | y') (a masked autoregressive flow by
 default) by maximum likelihood over (theta, y') pairs drawn from the prior and the
@@ -29,7 +29,7 @@ from sbi.inference import NPE, DirectPosterior
 from sbi.neural_nets import posterior_nn
 from torch.distributions import Independent, SigmoidTransform, TransformedDistribution, Uniform
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.data.datasets import load_split
 from cvsim6.data.priors import prior_bounds
 from cvsim6.registry import N_OUTPUTS, N_PARAMETERS

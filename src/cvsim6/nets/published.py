@@ -12,10 +12,10 @@ downstream rule and ``cvsim6 invert --models`` use them unchanged.
 Facts the conversion relies on (checked where they can be):
 
 * layer layout: the authors' ``MLP_nonlinear`` is ``Linear, act, [Linear, act] * (L - 2),
-  Linear`` like :class:`cvsim6.nets.networks.MLP`, so ``nn.Sequential`` indices carry over;
+  Linear`` like :class:`cvsim6.nets.MLP`, so ``nn.Sequential`` indices carry over;
   their Real-NVP alternates ``coupling, [batch norm]`` from data to latent, block 0
   transforming the second half (our ``swap=False``), batch norm with eps 1e-5 and the
-  running statistics used in eval mode, as :class:`cvsim6.nets.networks.RealNVP`;
+  running statistics used in eval mode, as :class:`cvsim6.nets.RealNVP`;
   the encoder's output is ``[mean, log-variance]`` like ours; the base distribution
   must be N(0, I) (``NF.Base_mean`` = 0, ``NF.Base_var`` = 1: checked).
 * units: SVR and PVR are in Wood units (mmHg min/L) in these networks' output
@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from cvsim6.data.downloads import check_sha256, download_checked
-from cvsim6.nets.networks import Emulator, EncoderDecoder, RealNVP, save_model
+from cvsim6.nets import Emulator, EncoderDecoder, RealNVP, save_model
 from cvsim6.registry import N_OUTPUTS, N_PARAMETERS, OUTPUT_INDEX, WOOD_TO_DYN
 
 log = logging.getLogger(__name__)

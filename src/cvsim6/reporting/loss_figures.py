@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, MaxNLocator  # noqa: E402
 
-from cvsim6.nets import networks  # noqa: E402
+from cvsim6 import nets as networks  # noqa: E402
 
 #: y-axis label per kind of network (the file-name stem before ``_delta``).
 LOSS_LABELS = {

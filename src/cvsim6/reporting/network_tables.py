@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.paper_values import PARAMETER_COUNTS
 from cvsim6.reporting.tables import write_table
 

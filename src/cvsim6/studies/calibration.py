@@ -25,9 +25,9 @@ import torch
 from cvsim6.inference import calibration
 from cvsim6.model import identifiability
 from cvsim6.inference import inversion
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.data.datasets import load_split
-from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.inference.npe import load_npe
 from cvsim6.reporting.figures import save_figure
 from cvsim6.data.priors import prior_bounds

@@ -21,7 +21,7 @@ from cvsim6.inference import inversion
 from cvsim6 import paper_values
 from cvsim6.data.datasets import load_split
 from cvsim6.model.equations import outside_domain
-from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.reporting.figures import label, save_figure
 from cvsim6.registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES, noise_std
 from cvsim6.model.solver import STATUS_OUTSIDE_DOMAIN, STATUS_REASONS, STATUS_UNPHYSICAL, unphysical

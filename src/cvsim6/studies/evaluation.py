@@ -8,7 +8,7 @@ import pandas as pd
 
 from cvsim6.data import datasets
 from cvsim6 import paper_values
-from cvsim6.nets.networks import load_model
+from cvsim6.nets import load_model
 from cvsim6.reporting.figures import label, save_figure
 from cvsim6.registry import OUTPUT_NAMES, OUTPUTS
 from cvsim6.reporting.tables import write_table

@@ -20,7 +20,7 @@ from cvsim6 import paper_values
 from cvsim6.data import priors
 from cvsim6.model import solver
 from cvsim6.model.equations import outside_domain
-from cvsim6.nets.networks import DEFAULT_CORRECTOR_STEPS, load_model
+from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.reporting.figures import save_figure
 from cvsim6.registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
 from cvsim6.reporting.tables import write_table

@@ -110,7 +110,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from cvsim6.nets import networks as nw
+from cvsim6 import nets as nw
 from cvsim6.data.datasets import load_split
 from cvsim6.registry import noise_std
 

@@ -55,6 +55,65 @@ def activation(tc, T, Ts):
     return 0.5 * (1.0 + math.cos(2.0 * math.pi * (tc - Ts) / Ts))
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _cyclic_solve(C0, C3, c0, c1, c2, c3, c4, c5, D1, D2, D4, D5, r0, r1, r2, r3, r4, r5):
+    """Solve one implicit stage of :func:`_step_range`: the symmetric cyclic tridiagonal 6x6
+    system in ``x`` (mmHg), diagonal ``C_i + c_{i-1} + c_i`` (``D1, D2, D4, D5`` precomputed, the
+    ventricles' from ``C0``, ``C3``), off-diagonals ``-c_i``, right-hand side ``r``. Elimination
+    that tracks the fill-in of the last column (diagonally dominant: no pivoting); inlined, so
+    the lane loop stays straight-line code."""
+    # row i keeps: diagonal d_i, super-diagonal -c_i, last-column fill l_i;
+    # w is row 5's entry in the column being eliminated
+    i0 = 1.0 / (C0 + c5 + c0)
+    m = -c0 * i0
+    d1 = D1 + m * c0
+    f1 = m * c5
+    r1 = r1 - m * r0
+    m5 = -c5 * i0
+    d5 = D5 + m5 * c5
+    r5 = r5 - m5 * r0
+    w = m5 * c0
+    i1 = 1.0 / d1
+    m = -c1 * i1
+    d2 = D2 + m * c1
+    f2 = -m * f1
+    r2 = r2 - m * r1
+    m5 = w * i1
+    d5 -= m5 * f1
+    r5 -= m5 * r1
+    w = m5 * c1
+    i2 = 1.0 / d2
+    m = -c2 * i2
+    d3 = C3 + c2 + c3 + m * c2
+    f3 = -m * f2
+    r3 = r3 - m * r2
+    m5 = w * i2
+    d5 -= m5 * f2
+    r5 -= m5 * r2
+    w = m5 * c2
+    i3 = 1.0 / d3
+    m = -c3 * i3
+    d4 = D4 + m * c3
+    f4 = -m * f3
+    r4 = r4 - m * r3
+    m5 = w * i3
+    d5 -= m5 * f3
+    r5 -= m5 * r3
+    w = -c4 + m5 * c3
+    i4 = 1.0 / d4
+    e45 = -c4 + f4  # row 4: super-diagonal and fill share column 5
+    m5 = w * i4
+    d5 -= m5 * e45
+    r5 -= m5 * r4
+    x5 = r5 / d5
+    x4 = (r4 - e45 * x5) * i4
+    x3 = (r3 + c3 * x4 - f3 * x5) * i3
+    x2 = (r2 + c2 * x3 - f2 * x5) * i2
+    x1 = (r1 + c1 * x2 - f1 * x5) * i1
+    x0 = (r0 + c0 * x1 + c5 * x5) * i0
+    return x0, x1, x2, x3, x4, x5
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _step_range(l0, l1, V, H, A1, A2, aeff, K, W, E, Vo, xo):
     """One SDIRK2 step for lanes l0..l1-1 from ``V[:, l]`` with step ``H[l]`` (s).
@@ -71,8 +130,8 @@ def _step_range(l0, l1, V, H, A1, A2, aeff, K, W, E, Vo, xo):
     ``(C_i + g (a_{i-1} + a_i)) x_i - g a_{i-1} x_{i-1} - g a_i x_{i+1} = rhs_i``
     (``g = gamma h``, ``a`` effective conductances, ``W`` unstressed volumes,
     ``e_k = off_k - off_{k+1}``), solved by elimination that tracks the fill-in of
-    the last column (diagonally dominant: no pivoting). Written flat, without calls,
-    so that the lane loop compiles to straight-line (vectorizable) code.
+    the last column (:func:`_cyclic_solve`, inlined: the lane loop compiles to
+    straight-line, vectorizable code).
     """
     f = (1.0 - GAMMA) / GAMMA
     for l in range(l0, l1):
@@ -115,55 +174,8 @@ def _step_range(l0, l1, V, H, A1, A2, aeff, K, W, E, Vo, xo):
             r3 = b3 - W3 + q3
             r4 = b4 - W4 + q4
             r5 = b5 - W5 + q5
-            # row i keeps: diagonal d_i, super-diagonal -c_i, last-column fill l_i;
-            # w is row 5's entry in the column being eliminated
-            i0 = 1.0 / (C0 + c5 + c0)
-            m = -c0 * i0
-            d1 = D1 + m * c0
-            f1 = m * c5
-            r1 = r1 - m * r0
-            m5 = -c5 * i0
-            d5 = D5 + m5 * c5
-            r5 = r5 - m5 * r0
-            w = m5 * c0
-            i1 = 1.0 / d1
-            m = -c1 * i1
-            d2 = D2 + m * c1
-            f2 = -m * f1
-            r2 = r2 - m * r1
-            m5 = w * i1
-            d5 -= m5 * f1
-            r5 -= m5 * r1
-            w = m5 * c1
-            i2 = 1.0 / d2
-            m = -c2 * i2
-            d3 = C3 + c2 + c3 + m * c2
-            f3 = -m * f2
-            r3 = r3 - m * r2
-            m5 = w * i2
-            d5 -= m5 * f2
-            r5 -= m5 * r2
-            w = m5 * c2
-            i3 = 1.0 / d3
-            m = -c3 * i3
-            d4 = D4 + m * c3
-            f4 = -m * f3
-            r4 = r4 - m * r3
-            m5 = w * i3
-            d5 -= m5 * f3
-            r5 -= m5 * r3
-            w = -c4 + m5 * c3
-            i4 = 1.0 / d4
-            e45 = -c4 + f4  # row 4: super-diagonal and fill share column 5
-            m5 = w * i4
-            d5 -= m5 * e45
-            r5 -= m5 * r4
-            x5 = r5 / d5
-            x4 = (r4 - e45 * x5) * i4
-            x3 = (r3 + c3 * x4 - f3 * x5) * i3
-            x2 = (r2 + c2 * x3 - f2 * x5) * i2
-            x1 = (r1 + c1 * x2 - f1 * x5) * i1
-            x0 = (r0 + c0 * x1 + c5 * x5) * i0
+            x0, x1, x2, x3, x4, x5 = _cyclic_solve(C0, C3, c0, c1, c2, c3, c4, c5, D1, D2, D4, D5,
+                                                   r0, r1, r2, r3, r4, r5)
         xo[0, l] = x0
         xo[1, l] = x1
         xo[2, l] = x2

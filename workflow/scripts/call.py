@@ -14,13 +14,17 @@ arguments:
 A single path is passed as ``str``, several paths as ``list[str]``. Logging
 (INFO, with timestamps) and everything written to stdout/stderr, including
 tqdm progress bars and messages from compiled code, go to ``log[0]``. An
-exception is logged with its traceback and re-raised, so the job fails.
+exception is logged with its traceback and re-raised, so the job fails; a
+:class:`cvsim6.errors.UserFacingError` (a setting to change, e.g. a failed
+download) is logged as one line, without a traceback, and the job exits 1.
 """
 import importlib
 import inspect
 import logging
 import os
 import sys
+
+from cvsim6.errors import UserFacingError
 
 # ``snakemake`` is injected by Snakemake's script directive.
 smk = snakemake  # noqa: F821
@@ -81,6 +85,9 @@ def main():
         logger.info("rule %s: %s(%s)", smk.rule, target, ", ".join(f"{k}={v!r}" for k, v in kwargs.items()))
         function(**kwargs)
         logger.info("rule %s: done", smk.rule)
+    except UserFacingError as e:  # a setting or input to change: its message says which
+        logger.error("rule %s: %s", smk.rule, e)
+        sys.exit(1)
     except Exception:
         logger.exception("rule %s: %s failed", smk.rule, target)
         raise

@@ -47,7 +47,7 @@ class EHRFormatError(ValueError):
 
 def download_ehr(url: str, sha256: str, output: str) -> None:
     """Download the EHR CSV from its public origin and check its SHA-256 (setting ``ehr_data.sha256``)."""
-    download_checked(url, sha256, output, what="ehr_data.sha256")
+    download_checked(url, sha256, output, what="ehr_data.sha256", local_key="ehr_data.path")
 
 
 def read_ehr(path: str | Path) -> pd.DataFrame:

@@ -142,7 +142,8 @@ def fetch_published_networks(directory: str, base_url: str | None = None) -> Non
     pinned origin (a mirror)."""
     for rel, sha in SHA256.items():
         download_checked(origin_url(rel, base_url), sha, Path(directory) / rel,
-                         what=f"published network file {rel}, commit {ORIGIN_COMMIT[:12]}")
+                         what=f"published network file {rel}, commit {ORIGIN_COMMIT[:12]}",
+                         local_key="networks.published.path")
 
 
 def verify_published_files(directory: str | Path, files: list[str]) -> None:

@@ -266,3 +266,24 @@ def test_simulate_names_text_and_blank_cells(default_params):
     assert solver.first_invalid_row(df) == (0, "C_v", "-3.0 mL/mmHg must be > 0")
     with pytest.raises(ValueError, match=r"steps_per_cycle = 19 is too small \(need >= 20\)"):
         solver.simulate(default_params, steps_per_cycle=solver.MIN_STEPS_PER_CYCLE - 1)
+
+
+def test_one_kernel_specialization_for_any_input_shape():
+    """A one-row DataFrame (a read-only view), a (23,) vector and an N-row frame reach the
+    compiled kernel as the same array type: one compilation serves them all (fresh process)."""
+    code = ("import numpy as np, pandas as pd\n"
+            "from cvsim6 import registry\n"
+            "from cvsim6.model import _kernel, solver\n"
+            "p = registry.default_parameters()\n"
+            "df = pd.DataFrame([p, p * 1.01, p * 0.99], columns=registry.PARAMETER_NAMES)\n"
+            "full = solver.simulate(df)\n"
+            "one = solver.simulate(df.iloc[1:2])\n"
+            "vec = solver.simulate_batch(p)[0]\n"
+            "assert one.iloc[0].equals(full.iloc[1]), 'a row depends on its batch'\n"
+            "assert np.array_equal(vec[0], full.iloc[0][list(registry.OUTPUT_NAMES)].to_numpy(float))\n"
+            "print(len(_kernel.batch.signatures))\n")
+    import subprocess
+    import sys
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split()[-1] == "1"

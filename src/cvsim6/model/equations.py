@@ -38,7 +38,9 @@ def as_parameter_array(params) -> np.ndarray:
     """Return ``params`` as a float64 array of shape (N, 23) in registry order.
 
     Accepts an (N, 23) or (23,) array, or a pandas DataFrame with the 23 parameter
-    names as columns (extra columns are ignored; a missing one is an error).
+    names as columns (extra columns are ignored; a missing one is an error). The result is
+    C-contiguous and writeable whatever the input, so the compiled kernels see one array
+    type (a read-only view, e.g. of a one-row DataFrame, would compile a second one).
     """
     try:
         import pandas as pd
@@ -55,7 +57,7 @@ def as_parameter_array(params) -> np.ndarray:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != N_PARAMETERS:
         raise ParameterError(f"expected parameters of shape (N, {N_PARAMETERS}), got {arr.shape}")
-    return np.ascontiguousarray(arr)
+    return np.require(arr, dtype=np.float64, requirements=["C", "W"])
 
 
 _POSITIVE = [i for i, p in enumerate(PARAMETERS) if p.kind in ("compliance", "resistance") or p.name == "Hr"]

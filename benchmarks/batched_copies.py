@@ -31,7 +31,7 @@ import yaml
 from torch import nn
 
 from cvsim6 import nets as nw
-from cvsim6.training.core import make_optimizer
+from cvsim6.training.optimization import make_optimizer
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -61,7 +61,7 @@ def appendix_c_ratios(y: np.ndarray, y_pred: np.ndarray) -> dict:
 
 def _run(job: tuple) -> dict:
     from cvsim6.data import datasets
-    from cvsim6.training import core as training
+    from cvsim6.training import train as training
     from cvsim6 import nets as nw
     from cvsim6.registry import OUTPUT_NAMES
 

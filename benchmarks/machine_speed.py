@@ -103,7 +103,8 @@ def measure(study: str, network: str, cfg: dict, train: Path, test: Path, folder
     """CPU seconds per epoch of ``network``, over ``epochs`` epochs (at least one test evaluation)."""
     from cvsim6.data import datasets
     from cvsim6 import nets as networks
-    from cvsim6.training import core as training
+    from cvsim6.training import train as training
+    from cvsim6.training.hyperparameters import check_hyper
 
     h = dict(cfg["training"]["studies"][study][network])
     h.pop("restarts", None)
@@ -118,7 +119,7 @@ def measure(study: str, network: str, cfg: dict, train: Path, test: Path, folder
     elif network == "flow":
         training.train_flow(noise_level=delta, **out)
     else:  # through an untrained emulator of the config's architecture (the cost is the same)
-        he = training.check_hyper("emulator", cfg["training"]["studies"][study]["emulator"])
+        he = check_hyper("emulator", cfg["training"]["studies"][study]["emulator"])
         v, y = datasets.load_split(train)
         emu = networks.Emulator(he["hidden"], he["layers"], activation=he["activation"])
         emu.x_scaler.fit(v)

@@ -47,7 +47,7 @@ def schedule(config_file: Path, study: str, network: str) -> dict:
 
 
 def _run(job: tuple) -> pd.DataFrame:
-    from cvsim6.training import core as training
+    from cvsim6.training import train as training
 
     name, study, network, hyper, seconds, seed, delta, emulator = job
     data = ROOT / "results" / "data" / study

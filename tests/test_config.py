@@ -83,13 +83,15 @@ def test_schema_documents_every_key_and_forbids_unknown_ones():
     schema = yaml.safe_load(SCHEMA_PATH.read_text())
 
     def walk(node, where):
-        if node.get("type") == "object":
-            assert node.get("additionalProperties") is False, where
+        if node.get("type") == "object":  # unevaluatedProperties where keys come in through allOf/$ref
+            assert node.get("additionalProperties") is False or node.get("unevaluatedProperties") is False, where
         for key, sub in node.get("properties", {}).items():
             assert sub.get("description"), f"{where}.{key} has no description"
             walk(sub, f"{where}.{key}")
 
     walk(schema, "<root>")
+    for name, node in schema["$defs"].items():
+        walk(node, f"$defs.{name}")
 
 
 def test_empty_file_loads_as_empty_dict(tmp_path):
@@ -104,7 +106,7 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
     update_config): a network entry must not inherit schedule options it did not state."""
     from snakemake.utils import update_config
 
-    from cvsim6.training.core import check_hyper
+    from cvsim6.training.hyperparameters import check_hyper
 
     cfg = load_config(ROOT / "config" / "config.yaml")
     update_config(cfg, load_config(ROOT / "config" / name))
@@ -121,3 +123,51 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
                     assert h["variance_floor"] is None and h["relative_weight"] == 0, study
                 if net == "encoder_decoder":  # the paper's constant KL weight
                     assert h["kl_warmup_epochs"] == 0, study
+
+
+def test_training_hyperparameters_have_one_schema_entry_per_network():
+    """The keys every network shares are written once ($defs/hyper_common) and taken in by each
+    network's entry; every key has a description, every optional one a default."""
+    import yaml
+
+    from cvsim6.workflow.config import def_defaults, def_properties
+
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())
+    common = schema["$defs"]["hyper_common"]["properties"]
+    assert {"epochs", "batch_size", "lr", "lr_schedule", "restarts", "restart_epochs"} <= set(common)
+    for net in ("emulator", "flow", "encoder_decoder"):
+        node = schema["$defs"][f"{net}_hyper"]
+        assert node["allOf"] == [{"$ref": "#/$defs/hyper_common"}] and node["unevaluatedProperties"] is False
+        assert not set(common) & set(node["properties"]), net  # no shared key copied
+        assert schema["$defs"]["training_study"]["properties"][net]["$ref"] == f"#/$defs/{net}_hyper"
+        props, required = def_properties(f"{net}_hyper")
+        assert list(props)[:len(common)] == list(common)
+        assert all(p.get("description") for p in props.values()), net
+        assert set(def_defaults(f"{net}_hyper")) == set(props) - set(required), net
+    assert def_defaults("flow_hyper")["lr_schedule"] == "step" and def_defaults("flow_hyper")["lr_step"] is None
+
+
+def test_unknown_training_key_is_named(default_config):
+    default_config["training"]["studies"]["ehr"]["flow"]["hiden"] = 3
+    with pytest.raises(ConfigError) as err:
+        validate_config(default_config)
+    assert str(err.value) == "unknown key 'hiden' in training.studies.ehr.flow"
+
+
+@pytest.mark.parametrize("name", CONFIGS + ["published.yaml"])
+def test_snakemake_validate_fills_the_defaults_check_hyper_fills(name):
+    """Snakemake's validate (as the Snakefile calls it) accepts the merged config and fills in the
+    schema's defaults: each network's hyperparameters then equal what training completes them to."""
+    from snakemake.utils import update_config, validate
+
+    from cvsim6.training.hyperparameters import check_hyper
+
+    cfg = load_config(ROOT / "config" / "config.yaml")
+    update_config(cfg, load_config(ROOT / "config" / name))
+    written = copy.deepcopy(cfg)
+    validate(cfg, str(SCHEMA_PATH))
+    assert "restarts" not in written["training"]["studies"]["ehr"]["flow"]  # a default was filled in
+    assert cfg["training"]["studies"]["ehr"]["flow"]["restarts"] == 1
+    for study, nets in cfg["training"]["studies"].items():
+        for net in ("emulator", "flow", "encoder_decoder"):
+            assert nets[net] == check_hyper(net, written["training"]["studies"][study][net]), (study, net)

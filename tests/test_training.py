@@ -1,4 +1,4 @@
-"""Training stages (cvsim6.training.core): losses fall, noise injection, outputs, resume, seeding."""
+"""Training (cvsim6.training): losses fall, noise injection, outputs, resume, seeding."""
 from __future__ import annotations
 
 import math
@@ -10,7 +10,11 @@ import pytest
 import torch
 
 from cvsim6 import nets as nw
-from cvsim6.training import core as tr
+from cvsim6 import seeding
+from cvsim6.training import fingerprint, loop, loss_weights, optimization, restarts
+from cvsim6.training import hyperparameters as hp
+from cvsim6.training import train as tr
+from cvsim6.training.stages import EmulatorStage, EncoderDecoderStage, FlowStage
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
 
 EMU = dict(hidden=32, layers=3, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
@@ -153,7 +157,7 @@ def test_encoder_decoder_with_log_parameters(data, emulator, tmp_path):
     v = model.invert(y, w)
     assert np.isfinite(v).all() and (v[:, positive] > 0).all()
     with pytest.raises(ValueError, match="log_parameters must be true or false"):
-        tr.check_hyper("encoder_decoder", ENCDEC | {"log_parameters": "yes"})
+        hp.check_hyper("encoder_decoder", ENCDEC | {"log_parameters": "yes"})
 
 
 def test_encoder_decoder_with_prior_reevaluation(data, emulator, tmp_path):
@@ -172,7 +176,7 @@ def test_encoder_decoder_with_prior_reevaluation(data, emulator, tmp_path):
     assert df["test_prior_reeval"].iloc[-1] < 0.5 * df["test_prior_reeval"].iloc[0]
     for bad in (-1.0, True, "1", float("nan")):
         with pytest.raises(ValueError, match="beta_prior must be a number >= 0"):
-            tr.check_hyper("encoder_decoder", ENCDEC | {"beta_prior": bad})
+            hp.check_hyper("encoder_decoder", ENCDEC | {"beta_prior": bad})
 
 
 @pytest.mark.parametrize("config_file", ["config.yaml", "paper.yaml"])
@@ -209,9 +213,9 @@ def _stages(noise_level):
     emu = nw.Emulator(hidden=4, layers=2)
     g = torch.Generator().manual_seed(0)
     cpu = torch.device("cpu")
-    return (tr.FlowStage(flow, y, y[:10], noise_level, g, cpu),
-            tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], noise_level, tr.check_hyper("encoder_decoder", dict(ENCDEC, reduction="sum")), g, cpu),
-            tr.EmulatorStage(emu, v, y, v[:10], y[:10], cpu))
+    return (FlowStage(flow, y, y[:10], noise_level, g, cpu),
+            EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], noise_level, hp.check_hyper("encoder_decoder", dict(ENCDEC, reduction="sum")), g, cpu),
+            EmulatorStage(emu, v, y, v[:10], y[:10], cpu))
 
 
 @pytest.mark.parametrize("delta", [0.5, 2.0])
@@ -296,7 +300,7 @@ def test_resume_after_kill_gives_identical_weights(stage, schedule, data, emulat
     _assert_same_weights(tmp_path / "full" / "m.pt", tmp_path / "split" / "m.pt")
 
     # 2) killed in the middle of epoch 6 (last checkpoint: epoch 4), then rerun
-    cls = {"emulator": tr.EmulatorStage, "flow": tr.FlowStage, "encoder_decoder": tr.EncoderDecoderStage}[stage]
+    cls = {"emulator": EmulatorStage, "flow": FlowStage, "encoder_decoder": EncoderDecoderStage}[stage]
     original = cls.batch_loss
     calls = {"n": 0}
     batches_per_epoch = 400 // hyper["batch_size"] + (400 % hyper["batch_size"] >= 2)
@@ -339,21 +343,35 @@ def test_checkpoint_of_other_training_code_is_not_reused(data, tmp_path, monkeyp
     kw = dict(hyper=EMU | {"epochs": 3}, seed=1, device="cpu", progress=False, **_paths(tmp_path, "m"))
     assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 3
     assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 0
-    real = tr.training_code_digest()
-    assert len(real) == 64 and real == tr.training_code_digest()
-    monkeypatch.setattr(tr, "training_code_digest", lambda: "edited" + real[6:])
+    real = fingerprint.training_code_digest()
+    assert len(real) == 64 and real == fingerprint.training_code_digest()
+    monkeypatch.setattr(fingerprint, "training_code_digest", lambda: "edited" + real[6:])
     assert tr.train_emulator(str(data[0]), str(data[1]), **kw)["epochs_this_run"] == 3
 
 
+def test_training_code_digest_covers_the_training_rules_code_inputs():
+    """Every source a training rule declares as its ``code`` input enters the checkpoints' digest."""
+    from pathlib import Path
+
+    from cvsim6.workflow.codegraph import module_closure
+
+    root = Path(fingerprint.__file__).resolve().parents[1]
+    hashed = {root / s for s in fingerprint.DIGEST_SOURCES if s.endswith(".py")}
+    hashed |= {f for s in fingerprint.DIGEST_SOURCES if not s.endswith(".py") for f in (root / s).rglob("*.py")}
+    closure = {Path(f).resolve() for f in module_closure("cvsim6.training.train", root)}
+    assert {root / "training" / "train.py", root / "seeding.py", root / "workflow" / "config.py"} <= closure
+    assert closure <= hashed, sorted(str(f) for f in closure - hashed)
+
+
 def test_non_finite_loss_keeps_the_last_good_checkpoint(data, emulator, tmp_path, monkeypatch):
-    orig, calls = tr.EncoderDecoderStage.batch_loss, {"n": 0}
+    orig, calls = EncoderDecoderStage.batch_loss, {"n": 0}
 
     def batch_loss(self, idx):  # a nan loss in the second epoch (13 steps per epoch)
         loss, parts = orig(self, idx)
         calls["n"] += 1
         return (loss * math.nan if calls["n"] == 16 else loss), parts
 
-    monkeypatch.setattr(tr.EncoderDecoderStage, "batch_loss", batch_loss)
+    monkeypatch.setattr(EncoderDecoderStage, "batch_loss", batch_loss)
     with pytest.raises(FloatingPointError, match="non-finite loss at epoch 2"):
         _encdec_run(data, emulator, tmp_path, {"epochs": 4}, checkpoint_every=1)
     good = torch.load(tmp_path / "m.pt.ckpt", weights_only=True)
@@ -379,13 +397,13 @@ def _encdec_weights(data, emulator, tmp_path, name, hyper, scale_call=None, scal
     (call number ``scale_call``) by ``scale``; return the saved weights."""
     if scale_call is not None:
         calls = {"n": 0}
-        orig = tr.EncoderDecoderStage.batch_loss
+        orig = EncoderDecoderStage.batch_loss
 
         def batch_loss(self, idx):
             loss, parts = orig(self, idx)
             calls["n"] += 1
             return (loss * scale if calls["n"] == scale_call else loss), parts
-        monkeypatch.setattr(tr.EncoderDecoderStage, "batch_loss", batch_loss)
+        monkeypatch.setattr(EncoderDecoderStage, "batch_loss", batch_loss)
     try:
         tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
                                  hyper=ENCDEC | {"epochs": 3} | hyper, seed=3, device="cpu", progress=False,
@@ -461,7 +479,7 @@ def _drop_timing(df):
 def test_restarts_continue_the_candidate_with_the_lowest_test_loss(data, emulator, tmp_path):
     assert _encdec_run(data, emulator, tmp_path / "r", _RESTARTS)["completed"]
     info = torch.load(tmp_path / "r" / "m.pt", weights_only=True)["info"]["restart"]
-    seeds = [tr.candidate_seed(3, c) for c in range(3)]
+    seeds = [seeding.candidate_seed(3, c) for c in range(3)]
     assert info["seeds"] == seeds and seeds[0] == 3 and len(set(seeds)) == 3 and info["epochs"] == 2
     # each candidate's own losses file holds the score it was chosen by
     cand = [pd.read_csv(tmp_path / "r" / f"m.pt.ckpt.candidate{c}.csv") for c in range(3)]
@@ -536,17 +554,17 @@ def test_candidate_options_are_checked(data, emulator, tmp_path):
 
 
 def test_a_diverged_candidate_loses_and_is_not_replayed(data, emulator, tmp_path, monkeypatch):
-    real_fit, calls = tr._fit, []
+    real_fit, calls = loop.fit, []
 
     def fit(stage, hyper, seed, *args, **kw):
         calls.append(seed)
-        if seed == tr.candidate_seed(3, 1):
+        if seed == seeding.candidate_seed(3, 1):
             raise FloatingPointError("non-finite loss at epoch 1")
         return real_fit(stage, hyper, seed, *args, **kw)
 
-    monkeypatch.setattr(tr, "_fit", fit)
+    monkeypatch.setattr(loop, "fit", fit)
     res = _encdec_run(data, emulator, tmp_path, _RESTARTS, max_epochs_this_run=4)  # candidates 0, 2 to the choice
-    assert not res["completed"] and calls == [tr.candidate_seed(3, c) for c in range(3)] + [3]  # + the run, 0 epochs
+    assert not res["completed"] and calls == [seeding.candidate_seed(3, c) for c in range(3)] + [3]  # + the run, 0 epochs
     assert torch.load(tmp_path / "m.pt.ckpt.candidate1", weights_only=True)["diverged"]
     calls.clear()
     assert _encdec_run(data, emulator, tmp_path, _RESTARTS)["completed"]
@@ -558,7 +576,7 @@ def test_a_diverged_candidate_loses_and_is_not_replayed(data, emulator, tmp_path
 
 def test_restarts_that_tie_continue_candidate_0_exactly_as_a_run_without_them(data, emulator, tmp_path,
                                                                                monkeypatch):
-    monkeypatch.setattr(tr, "candidate_seed", lambda seed, c: seed)  # three identical candidates
+    monkeypatch.setattr(restarts, "candidate_seed", lambda seed, c: seed)  # three identical candidates
     assert _encdec_run(data, emulator, tmp_path / "r", _RESTARTS)["completed"]
     info = torch.load(tmp_path / "r" / "m.pt", weights_only=True)["info"]["restart"]
     assert info["chosen"] == 0 and len(set(info["test_loss"])) == 1
@@ -570,54 +588,103 @@ def test_restarts_that_tie_continue_candidate_0_exactly_as_a_run_without_them(da
 
 def test_hyper_validation():
     with pytest.raises(ValueError, match="missing"):
-        tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})
+        hp.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})
     with pytest.raises(ValueError, match="unknown"):
-        tr.check_hyper("flow", FLOW | {"hiden": 3})
+        hp.check_hyper("flow", FLOW | {"hiden": 3})
     with pytest.raises(ValueError, match="reduction"):
-        tr.check_hyper("encoder_decoder", ENCDEC | {"reduction": "max"})
+        hp.check_hyper("encoder_decoder", ENCDEC | {"reduction": "max"})
     with pytest.raises(ValueError, match="lr_step"):
-        tr.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr_step"})
+        hp.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr_step"})
     with pytest.raises(ValueError, match="reeval_target"):
-        tr.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": "exact"})
+        hp.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": "exact"})
     with pytest.raises(ValueError, match="dtype"):
-        tr.check_hyper("emulator", EMU | {"dtype": "float16"})
+        hp.check_hyper("emulator", EMU | {"dtype": "float16"})
     with pytest.raises(ValueError, match="warmup_epochs"):
-        tr.check_hyper("emulator", EMU | {"lr_schedule": "cosine", "warmup_epochs": EMU["epochs"]})
+        hp.check_hyper("emulator", EMU | {"lr_schedule": "cosine", "warmup_epochs": EMU["epochs"]})
     for bad in (0.0, -1e-3, True, "1e-3", float("nan")):
         with pytest.raises(ValueError, match="variance_floor"):
-            tr.check_hyper("emulator", EMU | {"variance_floor": bad})
+            hp.check_hyper("emulator", EMU | {"variance_floor": bad})
     with pytest.raises(ValueError, match="unknown"):  # an emulator option only
-        tr.check_hyper("flow", FLOW | {"variance_floor": 1e-3})
+        hp.check_hyper("flow", FLOW | {"variance_floor": 1e-3})
     for bad in (-0.1, 1.5, True, "0.5", float("nan"), None):
         with pytest.raises(ValueError, match=f"relative_weight must be a number in \\[0, 1\\], got {re.escape(repr(bad))}"):
-            tr.check_hyper("emulator", EMU | {"relative_weight": bad})
+            hp.check_hyper("emulator", EMU | {"relative_weight": bad})
     for key in ("linear_skip", "log_inputs"):
         for bad in (1, "true", None):
             with pytest.raises(ValueError, match=f"{key} must be true or false, got {re.escape(repr(bad))}"):
-                tr.check_hyper("emulator", EMU | {key: bad})
+                hp.check_hyper("emulator", EMU | {key: bad})
         with pytest.raises(ValueError, match="unknown"):
-            tr.check_hyper("flow", FLOW | {key: True})
-    assert tr.check_hyper("emulator", EMU)["relative_weight"] == 0.0
+            hp.check_hyper("flow", FLOW | {key: True})
+    assert hp.check_hyper("emulator", EMU)["relative_weight"] == 0.0
     with pytest.raises(ValueError, match="unknown"):
-        tr.check_hyper("encoder_decoder", ENCDEC | {"relative_weight": 0.5})
+        hp.check_hyper("encoder_decoder", ENCDEC | {"relative_weight": 0.5})
     for bad in (-1, 2.5, ENCDEC["epochs"] + 1):
         with pytest.raises(ValueError, match="kl_warmup_epochs"):
-            tr.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
+            hp.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": bad})
     for bad in (0, -1.0, True, "4", float("inf")):
         with pytest.raises(ValueError, match=f"logvar_max must be null or a number > 0, got {re.escape(repr(bad))}"):
-            tr.check_hyper("encoder_decoder", ENCDEC | {"logvar_max": bad})
-    assert tr.check_hyper("encoder_decoder", ENCDEC)["logvar_max"] is None
+            hp.check_hyper("encoder_decoder", ENCDEC | {"logvar_max": bad})
+    assert hp.check_hyper("encoder_decoder", ENCDEC)["logvar_max"] is None
     for bad in ({"restarts": 0}, {"restarts": 2}, {"restarts": 2, "restart_epochs": ENCDEC["epochs"]},
                 {"restarts": 2, "restart_epochs": 5, "eval_every": 2}):
         with pytest.raises(ValueError, match="restart"):
-            tr.check_hyper("encoder_decoder", ENCDEC | bad)
-    h = tr.check_hyper("emulator", EMU)
+            hp.check_hyper("encoder_decoder", ENCDEC | bad)
+    h = hp.check_hyper("emulator", EMU)
     assert h["restarts"] == 1
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
     assert h["lr_schedule"] == "step" and h["eval_every"] == 1 and not h["keep_best"] and h["dtype"] == "float32"
     # the cosine schedule needs no step parameters
     cos = {k: v for k, v in EMU.items() if k not in ("lr_step", "lr_gamma")} | {"lr_schedule": "cosine"}
-    assert tr.check_hyper("emulator", cos)["lr_schedule"] == "cosine"
+    assert hp.check_hyper("emulator", cos)["lr_schedule"] == "cosine"
+
+
+def test_hyper_defaults_are_read_from_the_schema(tmp_path, monkeypatch):
+    """The defaults are the schema's: values, types and key order as the model files record them;
+    a default edited in the schema is the one training uses."""
+    from cvsim6.workflow import config
+
+    h = hp.check_hyper("encoder_decoder", ENCDEC)
+    assert list(h) == ["weight_decay", "grad_clip", "lr_schedule", "lr_step", "lr_gamma", "warmup_epochs", "lr_final",
+                       "eval_every", "keep_best", "dtype", "restarts", "restart_epochs", "reduction", "activation",
+                       "reeval_target", "noisy_scaling", "kl_warmup_epochs", "logvar_max", "log_parameters",
+                       "beta_prior", "latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
+                       "decoder_layers", "beta_d", "beta_v", "beta_r", "epochs", "batch_size", "lr"]
+    assert h["lr_step"] == 10 and h["reduction"] == "sum" and h["beta_prior"] == 0.0
+    assert type(h["weight_decay"]) is float and type(h["warmup_epochs"]) is int
+    edited = config.SCHEMA_PATH.read_text().replace(
+        "weight_decay: {description: Adam L2 penalty (0 = off)., type: number, minimum: 0, default: 0.0}",
+        "weight_decay: {description: Adam L2 penalty (0 = off)., type: number, minimum: 0, default: 2.5e-4}")
+    assert edited != config.SCHEMA_PATH.read_text()
+    (tmp_path / "schema.yaml").write_text(edited)
+    monkeypatch.setattr(config, "SCHEMA_PATH", tmp_path / "schema.yaml")
+    assert hp.check_hyper("flow", FLOW)["weight_decay"] == 1e-5  # given: kept
+    assert hp.check_hyper("emulator", EMU)["weight_decay"] == 2.5e-4
+
+
+def test_hyper_errors_name_the_stage_key_and_value():
+    with pytest.raises(ValueError, match=re.escape("flow hyperparameters: missing [], unknown ['hiden', 'lr_decay']")):
+        hp.check_hyper("flow", FLOW | {"hiden": 3, "lr_decay": 0.5})
+    with pytest.raises(ValueError, match=re.escape("emulator hyperparameter batch_size must be an integer >= 2, got 1")):
+        hp.check_hyper("emulator", EMU | {"batch_size": 1})
+    with pytest.raises(ValueError, match=re.escape("flow hyperparameter lr_gamma must be null or a number in (0, 1], "
+                                                   "got 1.5")):
+        hp.check_hyper("flow", FLOW | {"lr_gamma": 1.5})
+    with pytest.raises(ValueError, match=re.escape("emulator hyperparameter lr_schedule must be one of 'step', "
+                                                   "'cosine', got 'linear'")):
+        hp.check_hyper("emulator", EMU | {"lr_schedule": "linear"})
+    # the rules that tie keys together
+    with pytest.raises(ValueError, match=re.escape("emulator hyperparameter warmup_epochs must be below epochs (25), "
+                                                   "got 25")):
+        hp.check_hyper("emulator", EMU | {"lr_schedule": "cosine", "warmup_epochs": 25})
+    with pytest.raises(ValueError, match=re.escape("encoder_decoder hyperparameter kl_warmup_epochs must be at most "
+                                                   "epochs (25), got 26")):
+        hp.check_hyper("encoder_decoder", ENCDEC | {"kl_warmup_epochs": 26})
+    with pytest.raises(ValueError, match=re.escape("flow: lr_schedule 'step' needs lr_step and lr_gamma, got 20, None")):
+        hp.check_hyper("flow", {k: v for k, v in FLOW.items() if k != "lr_gamma"})
+    with pytest.raises(ValueError, match=re.escape("flow hyperparameter restart_epochs must be an integer in [1, epochs)"
+                                                   " and a multiple of eval_every (4) when restarts > 1, got 6")):
+        hp.check_hyper("flow", FLOW | {"restarts": 2, "restart_epochs": 6, "eval_every": 4})
+    assert hp.check_hyper("flow", FLOW | {"restarts": 2, "restart_epochs": 8, "eval_every": 4})["restarts"] == 2
 
 
 # ----------------------------------------------------------------------------- schedules and options
@@ -674,8 +741,8 @@ def test_clean_reevaluation_target():
         torch.manual_seed(0)
         encdec = nw.EncoderDecoder(latent_dim=3, encoder_hidden=8, encoder_layers=2, decoder_hidden=8,
                                    decoder_layers=2)
-        h = tr.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": target, "beta_r": 1.0})
-        st = tr.EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], 2.0, h, torch.Generator().manual_seed(1),
+        h = hp.check_hyper("encoder_decoder", ENCDEC | {"reeval_target": target, "beta_r": 1.0})
+        st = EncoderDecoderStage(encdec, emu, v, y, v[:10], y[:10], 2.0, h, torch.Generator().manual_seed(1),
                                     torch.device("cpu"))
         st.begin_epoch(torch.Generator().manual_seed(2))
         stages[target] = st
@@ -775,7 +842,7 @@ def test_variance_floor_matrix_raises_only_the_small_variances():
     lam = np.linalg.eigvalsh(c)
     assert lam[0] < 1e-4 < 0.5 < lam[1]
     floor = 1e-2
-    w = tr.variance_floor_matrix(y, floor)
+    w = loss_weights.variance_floor_matrix(y, floor)
     np.testing.assert_allclose(w, w.T, atol=1e-12)
     # the loss sees the covariance with its eigenvalues raised to the floor, the others unchanged
     np.testing.assert_allclose(np.linalg.eigvalsh(w @ c @ w), np.sort(np.maximum(lam, floor)), rtol=1e-9)
@@ -784,9 +851,9 @@ def test_variance_floor_matrix_raises_only_the_small_variances():
     np.testing.assert_allclose(vecs[:, -1] @ w, vecs[:, -1], atol=1e-9)
     np.testing.assert_allclose(vecs[:, 0] @ w, np.sqrt(floor / vals[0]) * vecs[:, 0], rtol=1e-9, atol=1e-9)
     # a floor below every eigenvalue is the plain MSE
-    np.testing.assert_allclose(tr.variance_floor_matrix(y, lam[0] / 2), np.eye(5), atol=1e-9)
+    np.testing.assert_allclose(loss_weights.variance_floor_matrix(y, lam[0] / 2), np.eye(5), atol=1e-9)
     with pytest.raises(ValueError, match="singular"):
-        tr.variance_floor_matrix(np.c_[y, y[:, 0]], floor)
+        loss_weights.variance_floor_matrix(np.c_[y, y[:, 0]], floor)
 
 
 def test_variance_floor_emulator_loss(data, tmp_path):
@@ -795,16 +862,16 @@ def test_variance_floor_emulator_loss(data, tmp_path):
     torch.manual_seed(0)
     net = nw.Emulator(16, 3)
     v, y = torch.randn(50, 23), torch.randn(50, 16)
-    w = tr.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
+    w = loss_weights.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
     assert not np.allclose(w, np.eye(16))
-    st = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=w)
+    st = EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=w)
     loss, parts = st.batch_loss(torch.arange(50))
     with torch.no_grad():
         err = net(v) - y
     assert float(loss.detach()) == pytest.approx(float(torch.mean((err @ torch.as_tensor(w, dtype=torch.float32)) ** 2)), rel=1e-5)
     with torch.no_grad():
         assert float(parts["mse"]) == pytest.approx(float(nw.emulator_loss(net(v), y)), rel=1e-6)
-    plain = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=np.eye(16))
+    plain = EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=np.eye(16))
     assert float(plain.batch_loss(torch.arange(50))[0].detach()) == pytest.approx(float(parts["mse"]), rel=1e-6)
 
     hyper = EMU | {"epochs": 6, "variance_floor": 0.05}
@@ -819,7 +886,7 @@ def test_variance_floor_emulator_loss(data, tmp_path):
     err = (model.predict(tv) - ty) / model.y_scaler.std.double().numpy()
     assert df["test_mse"].iloc[-1] == pytest.approx((err ** 2).mean(), rel=1e-3)
     train = pd.read_parquet(data[0])
-    wt = tr.variance_floor_matrix(model.y_scaler.transform(train[list(OUTPUT_NAMES)].to_numpy()), 0.05)
+    wt = loss_weights.variance_floor_matrix(model.y_scaler.transform(train[list(OUTPUT_NAMES)].to_numpy()), 0.05)
     assert df["test_loss"].iloc[-1] == pytest.approx(((err @ wt) ** 2).mean(), rel=1e-3)
 
 
@@ -829,23 +896,23 @@ def test_relative_sample_weights_follow_the_inverse_squared_norm():
     is named."""
     rng = np.random.default_rng(0)
     y_tr, y_te = rng.normal(size=(300, 16)) * 50 + 200, rng.normal(size=(40, 16)) * 50 + 200
-    w = tr.relative_sample_weights(y_tr, y_tr, 1.0)
+    w = loss_weights.relative_sample_weights(y_tr, y_tr, 1.0)
     assert w.mean() == pytest.approx(1.0, rel=1e-12)
     n2 = (y_tr ** 2).sum(1)
     np.testing.assert_allclose(w[:5] / w[5:10], n2[5:10] / n2[:5], rtol=1e-12)
-    np.testing.assert_array_equal(tr.relative_sample_weights(y_tr, y_te, 0.0), np.ones(40))
-    w_te, w_te1 = tr.relative_sample_weights(y_tr, y_te, 0.25), tr.relative_sample_weights(y_tr, y_te, 1.0)
+    np.testing.assert_array_equal(loss_weights.relative_sample_weights(y_tr, y_te, 0.0), np.ones(40))
+    w_te, w_te1 = loss_weights.relative_sample_weights(y_tr, y_te, 0.25), loss_weights.relative_sample_weights(y_tr, y_te, 1.0)
     np.testing.assert_allclose(w_te, 0.75 + 0.25 * w_te1, rtol=1e-12)
     # the test rows use the training rows' normalization: a row equal to a training row weighs the same
     y_te[3] = y_tr[7]
-    assert tr.relative_sample_weights(y_tr, y_te, 1.0)[3] == pytest.approx(w[7], rel=1e-12)
+    assert loss_weights.relative_sample_weights(y_tr, y_te, 1.0)[3] == pytest.approx(w[7], rel=1e-12)
     y_bad = y_te.copy()
     y_bad[11] = 0.0
     with pytest.raises(ValueError, match="row 11 of the given outputs has the squared norm 0.0"):
-        tr.relative_sample_weights(y_tr, y_bad, 1.0)
+        loss_weights.relative_sample_weights(y_tr, y_bad, 1.0)
     y_bad[11] = np.nan
     with pytest.raises(ValueError, match="row 11 of the given outputs has the squared norm nan"):
-        tr.relative_sample_weights(y_tr, y_bad, 1.0)
+        loss_weights.relative_sample_weights(y_tr, y_bad, 1.0)
 
 
 def test_relative_weight_emulator_loss(data, tmp_path):
@@ -857,7 +924,7 @@ def test_relative_weight_emulator_loss(data, tmp_path):
     net = nw.Emulator(16, 3)
     v, y = torch.randn(50, 23), torch.randn(50, 16)
     w = np.random.default_rng(2).uniform(0.1, 5.0, size=50)
-    st = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(w, w))
+    st = EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(w, w))
     idx = torch.arange(10, 40)
     loss, parts = st.batch_loss(idx)
     with torch.no_grad():
@@ -865,10 +932,10 @@ def test_relative_weight_emulator_loss(data, tmp_path):
     assert float(loss.detach()) == pytest.approx(float(np.mean(err[10:40] ** 2 * w[10:40, None])), rel=1e-5)
     assert float(parts["mse"]) == pytest.approx(float(np.mean(err[10:40] ** 2)), rel=1e-5)
     assert st.evaluate()[0] == pytest.approx(float(np.mean(err ** 2 * w[:, None])), rel=1e-5)
-    ones = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(np.ones(50), np.ones(50)))
+    ones = EmulatorStage(net, v, y, v, y, torch.device("cpu"), row_weights=(np.ones(50), np.ones(50)))
     assert float(ones.batch_loss(idx)[0].detach()) == pytest.approx(float(parts["mse"]), rel=1e-6)
-    vf = tr.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
-    both = tr.EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=vf, row_weights=(w, w))
+    vf = loss_weights.variance_floor_matrix(np.random.default_rng(1).normal(size=(200, 16)), 3.0)
+    both = EmulatorStage(net, v, y, v, y, torch.device("cpu"), weighting=vf, row_weights=(w, w))
     assert float(both.batch_loss(idx)[0].detach()) == pytest.approx(
         float(np.mean((err[10:40] @ vf) ** 2 * w[10:40, None])), rel=1e-5)
 
@@ -881,13 +948,13 @@ def test_relative_weight_emulator_loss(data, tmp_path):
     train, test = pd.read_parquet(data[0]), pd.read_parquet(data[1])
     tv, ty = test[list(PARAMETER_NAMES)].to_numpy(), test[list(OUTPUT_NAMES)].to_numpy()
     err = (model.predict(tv) - ty) / model.y_scaler.std.double().numpy()
-    wt = tr.relative_sample_weights(train[list(OUTPUT_NAMES)].to_numpy(), ty, 0.7)
+    wt = loss_weights.relative_sample_weights(train[list(OUTPUT_NAMES)].to_numpy(), ty, 0.7)
     assert df["test_mse"].iloc[-1] == pytest.approx((err ** 2).mean(), rel=1e-3)
     assert df["test_loss"].iloc[-1] == pytest.approx((err ** 2 * wt[:, None]).mean(), rel=1e-3)
     assert df["test_loss"].iloc[-1] != pytest.approx(df["test_mse"].iloc[-1], rel=1e-3)
 
 
 def test_resolve_device():
-    assert tr.resolve_device("cpu").type == "cpu"
-    assert tr.resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert optimization.resolve_device("cpu").type == "cpu"
+    assert optimization.resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
 

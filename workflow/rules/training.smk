@@ -58,7 +58,7 @@ rule train_emulator:
         mem_mb=4000,
         runtime=240,
     params:
-        function="cvsim6.training.core:train_emulator",
+        function="cvsim6.training.train:train_emulator",
         hyper=lambda w: config["training"]["studies"][w.study]["emulator"],
         seed=config["seed"],
         device=config["training"]["device"],
@@ -86,7 +86,7 @@ rule train_flow:
         mem_mb=4000,
         runtime=240,
     params:
-        function="cvsim6.training.core:train_flow",
+        function="cvsim6.training.train:train_flow",
         hyper=lambda w: config["training"]["studies"][w.study]["flow"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],
@@ -116,7 +116,7 @@ rule train_encoder_decoder_candidate:
         mem_mb=4000,
         runtime=120,
     params:
-        function="cvsim6.training.core:train_encoder_decoder",
+        function="cvsim6.training.train:train_encoder_decoder",
         candidate=lambda w: int(w.candidate),
         model=lambda w: f"{TRAINED_MODELS}/{w.study}/encoder_decoder_delta{w.delta}.pt",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
@@ -149,7 +149,7 @@ rule train_encoder_decoder:
         mem_mb=4000,
         runtime=480,
     params:
-        function="cvsim6.training.core:train_encoder_decoder",
+        function="cvsim6.training.train:train_encoder_decoder",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],

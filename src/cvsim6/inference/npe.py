@@ -33,7 +33,7 @@ from cvsim6 import nets as nw
 from cvsim6.data.datasets import load_split
 from cvsim6.data.priors import prior_bounds
 from cvsim6.registry import N_OUTPUTS, N_PARAMETERS
-from cvsim6.training.core import derived_seed
+from cvsim6.seeding import derived_seed
 
 log = logging.getLogger(__name__)
 

@@ -67,6 +67,11 @@ rule all:
         rules.structural_manifold_svd.output,
         rules.structural_missing_data.output,
         rules.structural_jacobian.output,
+        rules.structural_reconstruction_figure.output,
+        rules.structural_parallel_coordinates_figure.output,
+        rules.structural_manifold_svd_figure.output,
+        rules.structural_missing_data_figure.output,
+        rules.structural_jacobian_figure.output,
         expand(
             rules.ehr_ood_table.output,
             delta=noise_tag(config["ehr_study"]["figure_noise_level"]),

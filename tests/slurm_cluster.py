@@ -42,7 +42,8 @@ MARKER = "# Written by cvsim6 tests/slurm_cluster.py for a test cluster; removed
 
 
 class Unavailable(Exception):
-    """The cluster cannot run on this machine at all (the test skips with this reason)."""
+    """The cluster cannot run on this machine at all (the test skips with this reason, or fails
+    with it under ``CVSIM6_REQUIRE_LOCAL=1``)."""
 
 
 def ensure_installed(timeout: float = 900) -> None:

@@ -1,4 +1,4 @@
-"""The cvsim6 command line: simulate round trip and input errors."""
+"""The cvsim6 command line: simulate round trip, input errors, and ``invert`` against the library."""
 import subprocess
 import sys
 from pathlib import Path
@@ -6,23 +6,30 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 
+from conftest import gaussian_log_density, toy_ehr_networks
 from cvsim6 import cli
+from cvsim6 import nets as networks
 from cvsim6 import registry
+from cvsim6.data import datasets
+from cvsim6.model import equations as model
 from cvsim6.model import solver
+from cvsim6.studies import ehr as ehr_study
 
 
 def test_simulate_round_trip(tmp_path, structural_sets):
     P = structural_sets[:4]
     df = pd.DataFrame(P, columns=registry.PARAMETER_NAMES)
     df = df[list(reversed(df.columns))]  # any column order
-    df["patient"] = ["a", "b", "c", "d"]  # extra columns ignored
+    df["patient"] = ["a", "b", "c", "d"]  # other columns are carried over, first
     src = tmp_path / "params.csv"
     df.to_csv(src, index=False, float_format="%.17g")
     out = tmp_path / "sub" / "out.csv"
     assert cli.main(["simulate", str(src), "-o", str(out)]) == 0
     got = pd.read_csv(out)
-    assert list(got.columns) == list(registry.OUTPUT_NAMES) + ["status"]
+    assert list(got.columns) == ["patient"] + list(registry.OUTPUT_NAMES) + ["status"]
+    assert list(got["patient"]) == ["a", "b", "c", "d"]
     expect, st = solver.simulate_batch(P)
     np.testing.assert_allclose(got[list(registry.OUTPUT_NAMES)].to_numpy(), expect, rtol=1e-9)
     assert (got["status"] == "ok").all()
@@ -150,10 +157,6 @@ def test_console_script_is_installed(tmp_path, default_params):
 
 def test_invert_round_trip(tmp_path):
     """Saved (untrained) networks in the workflow's layout; partial observations in."""
-    import torch
-
-    from cvsim6 import nets as networks
-
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
     y = rng.normal(size=(300, 16)) * registry.noise_std() + 60
@@ -201,47 +204,18 @@ def test_invert_errors(tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- invert: bad input
-def _zero_flow(flow):
-    """Make every coupling the identity: the flow's density is then the Gaussian of the
-    standardized outputs, known in closed form."""
-    import torch
-
-    with torch.no_grad():
-        for layer in flow.layers:
-            for net in (layer.s, layer.t):
-                net[-1].weight.zero_()
-                net[-1].bias.zero_()
-    return flow
-
-
 @pytest.fixture(scope="module")
 def ehr_models(tmp_path_factory):
-    """Small networks on 400 simulated EHR-prior sets, saved in the workflow's layout, and
-    those outputs as a --reference split. The decoder's C_a is centred on 0, so that
-    decoded sets fall on both sides of the model's domain."""
-    import torch
-
-    from conftest import prior_sample
-    from cvsim6.data import datasets
-    from cvsim6 import nets as networks
-
-    torch.manual_seed(0)
-    v = prior_sample("ehr", 400, 5)
-    y, st = solver.simulate_batch(v)
-    assert (st == 0).all()
-    emu = networks.Emulator(16, 3)
-    emu.x_scaler.fit(v)
-    emu.y_scaler.fit(y)
-    flow = _zero_flow(networks.RealNVP(hidden=8, blocks=4, layers_per_block=3))
-    flow.y_scaler.fit(y)
-    ed = networks.EncoderDecoder(encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2)
-    ed.x_scaler.fit(v)
-    ed.y_scaler.fit(y)
+    """Small networks on 400 simulated EHR-prior sets (conftest.toy_ehr_networks: the flow is the
+    Gaussian of the standardized outputs), saved in the workflow's layout, and those outputs as a
+    --reference split. The decoder's C_a is centred on 0, so that decoded sets fall on both sides
+    of the model's domain."""
+    flow, ed, emu, v, y = toy_ehr_networks(400, 5)
     with torch.no_grad():
         ed.x_scaler.mean[registry.PARAMETER_INDEX["C_a"]] = 0.0
     root = tmp_path_factory.mktemp("ehr_models")
     networks.save_model(emu, root / "emulator.pt")
-    networks.save_model(flow.eval(), root / "flow_delta0.5.pt")
+    networks.save_model(flow, root / "flow_delta0.5.pt")
     networks.save_model(ed, root / "encoder_decoder_delta0.5.pt")
     df = pd.DataFrame(v, columns=registry.PARAMETER_NAMES)
     for j, name in enumerate(registry.OUTPUT_NAMES):  # Hr is both: the output copies the input
@@ -350,8 +324,6 @@ def test_invert_keeps_going_past_a_blank_row(tmp_path, ehr_models, capsys):
 
 
 def test_invert_flags_decoded_sets_outside_the_domain(tmp_path, ehr_models, capsys):
-    from cvsim6.model import equations as model
-
     models = ehr_models[0]
     src = tmp_path / "obs.csv"
     src.write_text("patient,Hr,P_a_sys,CO\nanna,70,120,5\n")
@@ -370,13 +342,31 @@ def test_invert_flags_decoded_sets_outside_the_domain(tmp_path, ehr_models, caps
                       "the model's domain (see outside_domain)")
 
 
+class DrawRecorder:
+    """A flow that keeps every batch it samples (``draws``); everything else is the flow's."""
+
+    def __init__(self, flow):
+        self.flow, self.draws = flow, []
+
+    def __getattr__(self, name):
+        return getattr(self.flow, name)
+
+    def sample_physical(self, n, generator=None):
+        out = self.flow.sample_physical(n, generator=generator)
+        self.draws.append(out)
+        return out
+
+
+def load_ehr_networks(models: Path) -> tuple:
+    """(flow, encoder_decoder, emulator) saved in ``models`` at noise level 0.5, as the CLI loads them."""
+    return tuple(networks.load_model(models / f) for f in ("flow_delta0.5.pt", "encoder_decoder_delta0.5.pt",
+                                                            "emulator.pt"))
+
+
 def test_invert_seed_reaches_every_draw(tmp_path, ehr_models):
     """Same --seed, same file, bit for bit (the OOD reference included, drawn from the flow);
     another seed, other reference draws."""
-    from cvsim6.studies import ehr as ehr_study
-    from cvsim6 import nets as networks
-
-    models = ehr_models[0]
+    models, _, y = ehr_models
     src = tmp_path / "obs.csv"
     src.write_text("Hr,P_a_sys,CO\n70,120,5\n")
     runs = {}
@@ -385,11 +375,63 @@ def test_invert_seed_reaches_every_draw(tmp_path, ehr_models):
         assert cli.main(["invert", str(src), "-o", str(out), "--models", str(models), *FAST, "--seed", str(seed)]) == 0
         runs[name] = out.read_bytes()
     assert runs["a"] == runs["b"] and runs["a"] != runs["c"]
-    # the library draws its flow reference from the seed too
-    flow = networks.load_model(models / "flow_delta0.5.pt")
-    ed = networks.load_model(models / "encoder_decoder_delta0.5.pt")
-    emu = networks.load_model(models / "emulator.pt")
-    obs = pd.DataFrame({"Hr": [70.0], "CO": [5.0]})
-    kw = dict(n_latent=2, n_flow_samples=4096, n_reference=30, reference_flow_samples=512)
-    pct = [ehr_study.invert_observations(obs, flow, ed, emu, seed=s, **kw)["ood_percentile"].iloc[0] for s in (5, 5, 6)]
-    assert pct[0] == pct[1]
+    # The library draws its flow reference from the seed too. A complete observation under this
+    # Gaussian flow scores its own log-density, and so does each reference draw (nothing to
+    # complete): its percentile is the share of the flow's reference draws, all of them kept
+    # (n_reference = their number), whose Gaussian log-density is below the observation's.
+    flow, ed, emu = load_ehr_networks(models)
+    mean, std = flow.y_scaler.mean.double().numpy(), flow.y_scaler.std.double().numpy()
+    obs = pd.DataFrame(y[[17]], columns=list(registry.OUTPUT_NAMES))
+    own = gaussian_log_density(obs.to_numpy(), mean, std)[0]
+    pct, draws = [], []
+    for seed in (5, 5, 6):
+        recorder = DrawRecorder(flow)
+        got = ehr_study.invert_observations(obs, recorder, ed, emu, n_latent=2, n_flow_samples=4096, seed=seed,
+                                            n_reference=ehr_study.REFERENCE_FLOW_DRAWS)
+        assert [d.shape for d in recorder.draws] == [(ehr_study.REFERENCE_FLOW_DRAWS, 16)]  # the reference only
+        assert got["log_density"].iloc[0] == pytest.approx(own, rel=1e-6)
+        ref = gaussian_log_density(recorder.draws[0], mean, std)
+        # float32 network against float64 arithmetic: a draw within 1e-3 nats may rank either way
+        low, high = 100 * np.mean(ref < own - 1e-3), 100 * np.mean(ref < own + 1e-3)
+        assert high - low <= 0.1
+        assert low <= got["ood_percentile"].iloc[0] <= high
+        pct.append(got["ood_percentile"].iloc[0])
+        draws.append(recorder.draws[0])
+    assert pct[0] == pct[1] and np.array_equal(draws[0], draws[1])
+    assert not np.array_equal(draws[0], draws[2])
+    assert 5 < pct[2] < 95  # a simulated patient, not an outlier of the fitted Gaussian
+
+
+@pytest.mark.parametrize("reference", [False, True], ids=["flow-reference", "simulated-reference"])
+def test_invert_equals_the_library_inversion(tmp_path, ehr_models, reference, capsys):
+    """``cvsim6 invert`` writes what ``cvsim6.studies.ehr.invert_observations`` returns for the same
+    observations, networks, seed and settings (to the 8 significant digits of its CSV); without
+    --corrector-steps, what the library gives at its default."""
+    models, _, y = ehr_models
+    names = list(registry.OUTPUT_NAMES)
+    obs = pd.DataFrame(y[[3, 8, 13]], columns=names, index=pd.Index(["p1", "p2", "p3"], name="patient"))
+    obs.iloc[0, [2, 4, 6, 8, 10, 14, 15]] = np.nan  # the paper's missing set
+    obs.iloc[1, 5:] = np.nan  # p2: the first five only; p3: everything observed
+    src = tmp_path / "obs.csv"
+    obs.to_csv(src, float_format="%.17g")
+    out = tmp_path / "params.csv"
+    options = ["--samples", "5", "--flow-samples", "3000", "--reference-size", "40", "--seed", "11"]
+    corrector = {"corrector_steps": 1} if reference else {}  # else the defaults of both
+    options += ["--reference", str(models / "reference.parquet"), "--corrector-steps", "1"] if reference else []
+    assert cli.main(["invert", str(src), "-o", str(out), "--models", str(models), *options]) == 0
+    capsys.readouterr()
+    got = pd.read_csv(out, keep_default_na=False, na_values=[""])
+    flow, ed, emu = load_ehr_networks(models)
+    lib = ehr_study.invert_observations(obs, flow, ed, emu, n_latent=5, n_flow_samples=3000, seed=11,
+                                        reference_outputs=y if reference else None, n_reference=40, **corrector)
+    assert list(got.columns) == ["patient"] + list(lib.columns[1:])
+    assert list(got["patient"]) == list(lib["id"]) == ["p1"] * 5 + ["p2"] * 5 + ["p3"] * 5
+    for col in ("status", "draw_status"):
+        assert list(got[col]) == list(lib[col]), col
+    assert list(got["outside_training"].astype(object).fillna("")) == list(lib["outside_training"])
+    assert list(got["outside_domain"]) == list(lib["outside_domain"])
+    numbers = ["draw", *registry.PARAMETER_NAMES, *(f"pred_{n}" for n in names), *(f"completed_{n}" for n in names),
+               "log_density", "ood_percentile", "ood_reference_size"]
+    np.testing.assert_allclose(got[numbers].to_numpy(float), lib[numbers].to_numpy(float), rtol=1e-7, atol=0)
+    assert (lib["ood_reference_size"] == 40).all()
+    assert lib.groupby("id")["ood_percentile"].nunique().eq(1).all()

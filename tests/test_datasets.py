@@ -135,3 +135,60 @@ def test_load_split_reads_registry_order_and_names_a_damaged_cell(tmp_path):
     datasets.write_dataset(df, tmp_path / "damaged.parquet")
     with pytest.raises(ValueError, match=r"damaged\.parquet: non-finite value in row 3, column 'C_v'"):
         datasets.load_split(tmp_path / "damaged.parquet")
+
+
+def test_histogram_counts_are_numpy_histograms_of_all_splits(tmp_path):
+    splits = build(tmp_path, 1, n=30)
+    datasets.histogram_counts(*(str(tmp_path / f"{k}.parquet") for k in datasets.SPLITS),
+                              counts=str(tmp_path / "histograms.csv"), bins=8)
+    counts = pd.read_csv(tmp_path / "histograms.csv")
+    assert list(counts.columns) == ["column", "bin", "left", "right", "count"]
+    names = list(dict.fromkeys(registry.PARAMETER_NAMES + registry.OUTPUT_NAMES))
+    assert list(counts["column"].unique()) == names  # Hr (parameter and output) once
+    assert len(counts) == 8 * len(names) == 8 * 38
+    every = pd.concat(splits.values(), ignore_index=True)
+    for name in ("C_a", "LVEF", "Hr"):
+        n, edges = np.histogram(every[name].to_numpy(), bins=8)
+        rows = counts[counts["column"] == name]
+        np.testing.assert_array_equal(rows["count"], n)
+        np.testing.assert_array_equal(rows["left"], edges[:-1])  # read back to the last bit
+        np.testing.assert_array_equal(rows["right"], edges[1:])
+        assert rows["left"].iloc[0] == every[name].min() and rows["right"].iloc[-1] == every[name].max()
+    assert (counts.groupby("column")["count"].sum() == 30).all()  # every set in every histogram
+
+
+def test_histogram_figures_draw_the_counts(tmp_path, monkeypatch):
+    """The data figures draw bars of the counts file alone (16 output panels, 23 input panels),
+    and neither the figure module nor the datasets module imports the other side."""
+    import subprocess
+    import sys
+
+    from cvsim6.reporting import data_figures
+    from cvsim6.reporting.figures import label
+
+    rows = [{"column": c, "bin": b, "left": 10.0 * b, "right": 10.0 * (b + 1), "count": (b + 1) * (i + 1)}
+            for i, c in enumerate(dict.fromkeys(registry.PARAMETER_NAMES + registry.OUTPUT_NAMES)) for b in range(3)]
+    pd.DataFrame(rows).to_csv(tmp_path / "histograms.csv", index=False)
+    drawn = {}
+    save = data_figures.save_figure
+    monkeypatch.setattr(data_figures, "save_figure", lambda fig, path: (drawn.setdefault(path, fig), save(fig, path)))
+    outputs, inputs = str(tmp_path / "outputs_histograms.png"), str(tmp_path / "inputs_histograms.png")
+    data_figures.plot_histograms(str(tmp_path / "histograms.csv"), outputs, inputs, "toy")
+    assert drawn[outputs].get_suptitle() == "toy study: outputs (6 sets)"  # Hr: 1 + 2 + 3
+    panels = [ax for ax in drawn[outputs].axes if ax.get_visible()]
+    assert [ax.get_xlabel() for ax in panels] == [label(n) for n in registry.OUTPUT_NAMES]
+    lvef = panels[registry.OUTPUT_NAMES.index("LVEF")]
+    i = list(dict.fromkeys(registry.PARAMETER_NAMES + registry.OUTPUT_NAMES)).index("LVEF")
+    assert [p.get_height() for p in lvef.patches] == [1.0 * (i + 1), 2.0 * (i + 1), 3.0 * (i + 1)]
+    assert [p.get_x() for p in lvef.patches] == [0.0, 10.0, 20.0]
+    assert sum(ax.get_visible() for ax in drawn[inputs].axes) == 23
+    assert (tmp_path / "outputs_histograms.pdf").is_file() and (tmp_path / "inputs_histograms.pdf").is_file()
+    out = subprocess.run([sys.executable, "-c", "import sys, cvsim6.reporting.data_figures; "
+                          "print(sorted(m for m in sys.modules if m in ('torch', 'cvsim6.model.solver', "
+                          "'cvsim6.data.datasets', 'matplotlib.pyplot') or m.startswith('cvsim6.studies')))"],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stderr
+    out = subprocess.run([sys.executable, "-c", "import sys, cvsim6.data.datasets; print(sorted(m for m in "
+                          "sys.modules if m.startswith('cvsim6.reporting') or m == 'matplotlib'))"],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stderr

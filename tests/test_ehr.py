@@ -4,11 +4,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from conftest import LOCAL_EHR_CSV, needs_local_ehr
 from cvsim6.data import downloads
 from cvsim6.data import ehr
 from cvsim6 import registry
-
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
 
 
 def synthetic(path, edit=None, n_patients=84):
@@ -61,14 +60,15 @@ def test_selection_threshold_is_more_than_ten(tmp_path):
         assert (1 in ehr.select_patients(out).index) is selected
 
 
-@pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
+@needs_local_ehr
 def test_real_file_selects_46_patients_with_the_paper_counts(tmp_path):
-    assert downloads.sha256_of(REAL) == "5beb040de24c2b6abad0963c002584957a7f422be084ccd7654c5c501b7e48ee"
-    out = ehr.ehr_outputs(REAL)
+    real = LOCAL_EHR_CSV
+    assert downloads.sha256_of(real) == "5beb040de24c2b6abad0963c002584957a7f422be084ccd7654c5c501b7e48ee"
+    out = ehr.ehr_outputs(real)
     sel = ehr.select_patients(out)
     assert len(out) == 84 and len(sel) == 46
     paper_counts = [46, 46, 46, 44, 11, 46, 46, 44, 46, 3, 0, 3, 45, 46, 46, 46]
     assert [int(sel[c].notna().sum()) for c in registry.OUTPUT_NAMES] == paper_counts
     assert sel["LVEF"].dropna().between(0, 1).all()
-    ehr.write_patient_selection(str(REAL), str(tmp_path / "p.csv"), str(tmp_path / "c.csv"), str(tmp_path / "c.md"))
+    ehr.write_patient_selection(str(real), str(tmp_path / "p.csv"), str(tmp_path / "c.csv"), str(tmp_path / "c.md"))
     assert len(pd.read_csv(tmp_path / "p.csv")) == 46

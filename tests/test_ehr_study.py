@@ -9,7 +9,7 @@ import pytest
 from cvsim6.studies import ehr as ehr_study
 from cvsim6 import registry
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "EHR_dataset.csv"
+from conftest import LOCAL_EHR_CSV as REAL, needs_local_ehr  # the local copy of the EHR data
 
 
 def test_error_per_output_is_the_papers_criterion():
@@ -124,7 +124,7 @@ def test_unit_problems():
     assert [p[:3] for p in ehr_study.unit_problems(obs)] == [(1, "LVEF", 55.0), (2, "LVEF", 60.0), (2, "CO", 0.0)]
 
 
-@pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
+@needs_local_ehr
 def test_real_patients_pass_the_unit_checks():
     from cvsim6.data import ehr
 
@@ -152,3 +152,66 @@ def test_not_inverted_patients_leave_e_k_and_ood_table_readable(tmp_path):
     assert list(t["status"]) == ["ok", "not inverted: no output given"]
     assert list(t["flag (< 1st percentile)"]) == [True, False]
     assert "among 200 simulated outputs (resolution 0.5 percentage points)" in (tmp_path / "t.md").read_text()
+
+
+def test_reference_without_simulated_outputs_is_the_seeded_flow_sample(gaussian_twin):
+    """With no simulated outputs the training range comes from REFERENCE_FLOW_DRAWS flow samples
+    drawn with the public seeded generator (stream [seed, 1]); the OOD rows are picked with seed."""
+    from cvsim6.inference import inversion
+
+    flow, _, _, _ = gaussian_twin
+    ref = ehr_study._Reference.build(flow, None, n_reference=7, flow_samples=64, seed=5)
+    gen = inversion.seeded_torch_generator(np.random.SeedSequence([5, 1]).generate_state(1)[0])
+    drawn = flow.sample_physical(ehr_study.REFERENCE_FLOW_DRAWS, generator=gen)
+    lo, hi = ehr_study.training_range(drawn)
+    np.testing.assert_array_equal(ref.low, lo)
+    np.testing.assert_array_equal(ref.high, hi)
+    pick = np.random.default_rng(5).choice(len(drawn), size=7, replace=False)
+    np.testing.assert_array_equal(ref.rows, drawn[pick])
+    assert ref.outside(np.r_[hi[0] + 1.0, np.full(15, np.nan)]) == ["Hr"]
+
+
+def test_patient_figure_draws_the_measurements_and_the_predictions(tmp_path, monkeypatch):
+    """The EHR figure from a small patients CSV and predictions Parquet: one panel per measured
+    output, the measurement as the star, each patient's draws as dots, +-3 sigma bars."""
+    import subprocess
+    import sys
+
+    from cvsim6.reporting import ehr_figures
+
+    assert ehr_figures.PRED == ehr_study.PRED
+    names = list(registry.OUTPUT_NAMES)
+    obs = pd.DataFrame(np.nan, index=pd.Index([4, 9], name="patient"), columns=names)
+    obs["Hr"] = [62.0, 88.0]
+    obs.loc[9, "CO"] = 4.5
+    obs.to_csv(tmp_path / "patients.csv")
+    pred = pd.DataFrame({"id": [4, 4, 4, 9, 9, 9], "noise_level": 0.5, "status": "ok", "draw": [0, 1, 2] * 2})
+    for n in names:
+        pred[ehr_study.PRED + n] = 1.0
+    pred[ehr_study.PRED + "Hr"] = [60.0, 61.0, 65.0, 90.0, 86.0, 87.0]
+    pred[ehr_study.PRED + "CO"] = [5.0, 5.1, 5.2, 4.0, 4.4, 4.9]
+    pred.to_parquet(tmp_path / "p.parquet")
+    assert list(ehr_figures.read_predictions(str(tmp_path / "p.parquet")).columns) == \
+        ["id", "noise_level", *(ehr_study.PRED + n for n in names)]
+    drawn = {}
+    save = ehr_figures.save_figure
+    monkeypatch.setattr(ehr_figures, "save_figure", lambda fig, p: (drawn.setdefault("fig", fig), save(fig, p)))
+    ehr_figures.ehr_patient_figure(str(tmp_path / "patients.csv"), str(tmp_path / "p.parquet"),
+                                   str(tmp_path / "patient_predictions_delta0.5.png"))
+    fig = drawn["fig"]
+    assert fig.get_suptitle().startswith("Patient-specific predictions, delta = 0.5")
+    hr, co = [ax for ax in fig.axes if ax.get_visible()]
+    assert (hr.get_ylabel(), co.get_ylabel()) == ("Hr (bpm)", "CO (L/min)")
+    dots = [ln.get_ydata().tolist() for ln in hr.get_lines() if ln.get_marker() == "."][:2]
+    assert dots == [[60.0, 61.0, 65.0], [90.0, 86.0, 87.0]]
+    star = [ln for ln in co.get_lines() if ln.get_marker() == "*"][0]
+    assert star.get_ydata().tolist() == [4.5] and [t.get_text() for t in co.get_xticklabels()] == ["9"]
+    s_hr = registry.noise_std()[registry.OUTPUT_INDEX["Hr"]]
+    np.testing.assert_allclose([p.get_height() for p in hr.patches], [6 * s_hr] * 2)
+    np.testing.assert_allclose([p.get_y() for p in hr.patches], np.array([62.0, 88.0]) - 3 * s_hr)
+    assert (tmp_path / "patient_predictions_delta0.5.pdf").is_file()
+    out = subprocess.run([sys.executable, "-c", "import sys, cvsim6.reporting.ehr_figures; print(sorted(m for m in "
+                          "sys.modules if m in ('torch', 'cvsim6.model.solver', 'cvsim6.data.datasets', "
+                          "'matplotlib.pyplot') or m.startswith('cvsim6.studies') or m.startswith('cvsim6.nets')))"],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stderr

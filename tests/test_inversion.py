@@ -2,9 +2,12 @@
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 
+from conftest import gaussian_log_density, identity_couplings
 from cvsim6.inference import inversion
 from cvsim6 import nets as networks
+from cvsim6 import paper_values
 from cvsim6 import registry
 
 
@@ -39,7 +42,7 @@ def test_completions_keep_observed_entries_and_are_the_most_likely(flow):
     assert (best[:, obs] == y[obs]).all()
     assert np.isfinite(best).all()
     # brute force over the same sample stream: no sample beats the kept ones
-    samples = np.vstack([flow.sample_physical(4096, inversion._generator(inversion._block_seed(1, b)))
+    samples = np.vstack([flow.sample_physical(4096, inversion.seeded_torch_generator(inversion._block_seed(1, b)))
                          for b in range(2)])
     samples[:, obs] = y[obs]
     all_lp = flow.log_prob_physical(samples)
@@ -102,8 +105,10 @@ def test_corrector_steps_have_one_default():
     for f in (networks.EncoderDecoder.invert, inversion.decode_latent, ehr_study.invert_observations,
               ehr_study.invert_ehr_patients):
         assert inspect.signature(f).parameters["corrector_steps"].default == networks.DEFAULT_CORRECTOR_STEPS, f
+    # the CLI's: None = the library's, resolved when the command runs (tests/test_cli.py checks that
+    # `cvsim6 invert` without --corrector-steps equals the library at its default)
     args = cli.build_parser().parse_args(["invert", "obs.csv", "-o", "out.csv"])
-    assert args.corrector_steps == networks.DEFAULT_CORRECTOR_STEPS
+    assert args.corrector_steps in (None, networks.DEFAULT_CORRECTOR_STEPS)
     torch.manual_seed(0)
     ed = networks.EncoderDecoder()
     y = np.random.default_rng(1).normal(size=(2, 16)) * 10 + 50
@@ -132,3 +137,71 @@ def test_ood_percentile_resolution():
     assert inversion.ood_percentile(0.5, ref) == pytest.approx(0.1)
     assert inversion.ood_percentile(-5.0, ref) == 0.0
     assert np.isnan(inversion.ood_percentile(1.0, [np.nan]))
+
+
+# ----------------------------------------------------------------------------- Algorithm 1, closed form
+class IndependentGaussian:
+    """A density estimator with the interface Algorithm 1 uses (``eval``, ``sample_physical``,
+    ``log_prob_physical``) whose density is N(mean, diag(std^2)) in physical units, float64."""
+
+    def __init__(self, mean: np.ndarray, std: np.ndarray):
+        self.mean, self.std = np.asarray(mean, float), np.asarray(std, float)
+
+    def eval(self):
+        return self
+
+    def sample_physical(self, n: int, generator: torch.Generator | None = None) -> np.ndarray:
+        z = torch.randn(n, len(self.mean), generator=generator, dtype=torch.float64).numpy()
+        return self.mean + self.std * z
+
+    def log_prob_physical(self, y: np.ndarray) -> np.ndarray:
+        return gaussian_log_density(y, self.mean, self.std)
+
+
+GAUSS_MEAN = np.array(paper_values.Y_STAR)  # registry units
+GAUSS_STD = 4 * registry.noise_std()
+
+
+def gaussian_density(kind: str) -> tuple:
+    """``(flow, mean, std, tolerance in nats)``: the Gaussian itself, or a RealNVP (float32) whose
+    couplings are the identity and whose output scaler holds that mean and std."""
+    if kind == "gaussian":
+        return IndependentGaussian(GAUSS_MEAN, GAUSS_STD), GAUSS_MEAN, GAUSS_STD, 1e-9
+    torch.manual_seed(0)
+    flow = identity_couplings(networks.RealNVP(hidden=8, blocks=4, layers_per_block=3))
+    with torch.no_grad():
+        flow.y_scaler.mean.copy_(torch.as_tensor(GAUSS_MEAN))
+        flow.y_scaler.std.copy_(torch.as_tensor(GAUSS_STD))
+    return flow.eval(), flow.y_scaler.mean.double().numpy(), flow.y_scaler.std.double().numpy(), 1e-4
+
+
+MISSING_SETS = {"paper's seven": [2, 4, 6, 8, 10, 14, 15], "two": [4, 14]}
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "real_nvp"])
+@pytest.mark.parametrize("missing_set", list(MISSING_SETS))
+def test_algorithm_1_completes_a_gaussian_with_its_mean(kind, missing_set):
+    """Under an independent Gaussian N(m, diag(s^2)) the most likely completion sets each missing
+    output j to m_j; its log-density is log N(observed part) - sum over the k missing j of
+    log(s_j sqrt(2 pi)), and any other completion lies d^2 / 2 nats below it, d^2 its squared
+    standardized distance over the missing outputs. Algorithm 1 with M samples keeps the
+    smallest of M chi^2_k draws of d^2: below the chi^2_k quantile at 30/M except with
+    probability (1 - 30/M)^M < e^-30, and its 5th smallest below the quantile at 60/M (at least 5
+    of M draws fall there except with probability < 1e-19)."""
+    flow, mean, std, tol = gaussian_density(kind)
+    missing = np.zeros(16, bool)
+    missing[MISSING_SETS[missing_set]] = True
+    k, n_samples = int(missing.sum()), 20000
+    y = np.where(missing, np.nan, mean + np.linspace(-1.5, 1.5, 16) * std)  # observed up to 1.5 sd off
+    best, lp = inversion.complete_missing(flow, y, n_samples, top_k=5, seed=4)
+    assert (best[:, ~missing] == y[~missing]).all()
+    mode_lp = gaussian_log_density(np.where(missing, mean, y), mean, std)[0]
+    np.testing.assert_allclose(lp, gaussian_log_density(best, mean, std), rtol=0, atol=tol)
+    d2 = ((((best - mean) / std)[:, missing]) ** 2).sum(axis=1)
+    np.testing.assert_allclose(mode_lp - lp, d2 / 2, rtol=0, atol=tol)
+    assert (np.diff(lp) <= 0).all() and (lp <= mode_lp + tol).all()
+    q_best, q_fifth = stats.chi2.ppf(30 / n_samples, k), stats.chi2.ppf(60 / n_samples, k)
+    assert d2[0] <= q_best and d2[-1] <= q_fifth
+    assert (np.abs(best[0, missing] - mean[missing]) <= np.sqrt(q_best) * std[missing]).all()
+    if k == 2:  # two missing outputs: the best completion within 0.06 standard deviations of the mean
+        assert np.sqrt(q_best) < 0.06

@@ -109,8 +109,8 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
     """A network trained with restarts: its model file's restart record is read back, every
     finite candidate score lies inside the y limits (the rejected ones may sit far above the
     kept curve), and a diverged candidate is left out of the limits."""
-    import matplotlib.pyplot as plt
     import torch
+    from matplotlib.figure import Figure
 
     csv = str(_emulator_csv(tmp_path / "l.csv", False))  # losses fall from 1.1 to ~0.007
     record = {"epochs": 50, "chosen": 1, "seeds": [7, 8, 9, 10], "test_loss": [30.0, 0.09, 5.0, float("inf")]}
@@ -124,7 +124,8 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
         lp.restart_record(tmp_path / "bad.pt")
 
     captured = {}
-    monkeypatch.setattr(lp.plt, "close", lambda fig=None: captured.setdefault("fig", fig))  # keep the figure
+    savefig = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (captured.setdefault("fig", fig), savefig(fig, *a, **k)))
     out = lp.plot_training_losses(csv, str(tmp_path / "r.png"), "encoder_decoder_delta0", "structural",
                                   model=str(tmp_path / "m.pt"))
     monkeypatch.undo()
@@ -138,6 +139,30 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
     assert len(kept) == 1 and kept[0].tolist() == [0.09]
     assert len(others) == 1 and sorted(others[0].tolist()) == [5.0, 30.0]
     assert any("1 diverged" in k for k in marks)
-    plt.close(captured["fig"])
     plain = lp.plot_training_losses(csv, str(tmp_path / "p.png"), "emulator", model=str(tmp_path / "plain.pt"))
     assert plain["restart"] is None
+
+
+def test_figure_modules_choose_no_backend_and_draw_with_a_display_set(tmp_path):
+    """Importing the figure modules and drawing a loss figure neither imports pyplot nor picks a
+    backend, so a figure is written the same with or without a display (here an unreachable one)."""
+    import os
+    import subprocess
+    import sys
+
+    from matplotlib.image import imread
+
+    csv = _emulator_csv(tmp_path / "l.csv", False)
+    code = (
+        "import sys, matplotlib\n"
+        "from cvsim6.reporting import figures, loss_figures, stiffness_figures, ehr_figures, calibration_figures, "
+        "data_figures\n"
+        f"cut = loss_figures.plot_losses({str(csv)!r}, {str(tmp_path / 'l.png')!r})\n"
+        "print(cut, matplotlib.rcParams._get_backend_or_none(), 'matplotlib.pyplot' in sys.modules)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MPLBACKEND", "DISPLAY")}
+    for display in (None, ":99"):
+        run_env = env if display is None else {**env, "DISPLAY": display}
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=run_env, check=True)
+        assert out.stdout.split() == ["{}", "None", "False"], out.stderr
+        assert imread(tmp_path / "l.png").shape == (675, 1050, 4)  # 7 x 4.5 inches at 150 dpi

@@ -3,29 +3,26 @@ converted networks still do their job (against our simulator, independently of t
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
 
+from conftest import LOCAL_EHR_CSV, LOCAL_PUBLISHED, needs_local_ehr, needs_published, prior_sample
 from cvsim6.data import downloads
 from cvsim6.data import ehr
 from cvsim6.studies import ehr as ehr_study
 from cvsim6.inference import inversion
 from cvsim6 import paper_values
-from cvsim6.data import priors
 from cvsim6.nets import published
 from cvsim6 import registry
 from cvsim6.model import solver
 from cvsim6.nets import load_model
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-NETWORKS = SHARED / "paper_networks"
-EHR_CSV = SHARED / "EHR_dataset.csv"
+NETWORKS = LOCAL_PUBLISHED
 
-pytestmark = pytest.mark.skipif(not NETWORKS.is_dir(), reason="local copy of the published networks not present")
+pytestmark = needs_published
 
 
 @pytest.fixture(scope="module")
@@ -40,11 +37,6 @@ def converted(tmp_path_factory) -> dict[str, dict]:
         published.convert_published_study(str(NETWORKS), study, noise_levels=deltas, **files)
         models[study] = files
     return models
-
-
-def prior_draws(study: str, n: int, seed: int) -> np.ndarray:
-    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS[study])
-    return priors.sample_uniform(lo, hi, n, np.random.default_rng(seed))
 
 
 def test_every_local_file_matches_its_published_checksum():
@@ -68,7 +60,7 @@ def test_scalers_are_converted_to_registry_units():
 
 @pytest.mark.parametrize("study", ["structural", "ehr"])
 def test_converted_emulator_reproduces_the_simulator(converted, study):
-    v = np.vstack([registry.default_parameters(), prior_draws(study, 300, 3)])
+    v = np.vstack([registry.default_parameters(), prior_sample(study, 300, 3)])
     y, status = solver.simulate_batch(v)
     assert (status == 0).all()
     emu = load_model(converted[study]["emulator"])
@@ -106,7 +98,7 @@ def test_converted_flow_is_a_consistent_density_of_the_outputs(converted, study,
     torch.testing.assert_close(lp, base - logdet_inv, atol=1e-8, rtol=1e-8)
     # and it is a density of the simulated outputs (our simulator, the study's prior):
     # sample means within 0.1 standard deviations of the data's, in registry units
-    y_data, status = solver.simulate_batch(prior_draws(study, 2000, 5))
+    y_data, status = solver.simulate_batch(prior_sample(study, 2000, 5))
     y_data = y_data[status == 0]
     if delta:
         y_data = y_data + delta * registry.noise_std() * np.random.default_rng(1).standard_normal(y_data.shape)
@@ -119,7 +111,7 @@ def test_converted_flow_is_a_consistent_density_of_the_outputs(converted, study,
 def test_converted_encoder_decoder_inverts_the_simulator(converted):
     """Table 3 in small: decode simulated outputs, simulate the decoded parameters."""
     ed = load_model(converted["structural"]["encoder_decoders"][0])
-    y, status = solver.simulate_batch(prior_draws("structural", 400, 7))
+    y, status = solver.simulate_batch(prior_sample("structural", 400, 7))
     y = y[status == 0]
     v = inversion.decode_latent(ed, y, 1, seed=0, corrector_steps=2)[:, 0]
     y_hat, st = solver.simulate_batch(v, invalid="flag")
@@ -161,14 +153,14 @@ def test_noise_levels_without_published_networks_are_refused():
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not EHR_CSV.is_file(), reason="local copy of the EHR data not present")
+@needs_local_ehr
 def test_published_networks_reproduce_table_5_at_delta_half(converted):
     """Our EHR inversion (Algorithm 1 with 100,000 flow samples, 100 latent draws, two
     predictor-corrector rounds) with the paper's networks gives e_k within 10% of the
     paper's table 5 at delta = 0.5 for every output observed in more than 10 patients.
     (Ratios measured at 100,000 samples: 0.971-1.059 with seed 2024, 0.975-1.065 with seed 7;
     at 50,000 up to 1.104, so not fewer.)"""
-    obs = ehr.select_patients(ehr.ehr_outputs(EHR_CSV))
+    obs = ehr.select_patients(ehr.ehr_outputs(LOCAL_EHR_CSV))
     files = converted["ehr"]
     pred = ehr_study.invert_observations(obs, load_model(files["flows"][0]), load_model(files["encoder_decoders"][0]),
                                          load_model(files["emulator"]), n_latent=100, n_flow_samples=100_000,

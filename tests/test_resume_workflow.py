@@ -16,7 +16,6 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,11 +23,10 @@ import pandas as pd
 import pytest
 import torch
 
-from test_workflow import copy_workflow
+from conftest import SNAKEMAKE, copy_workflow, snakemake
 
 pytestmark = pytest.mark.slow
 
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 MODEL = "results/models/structural/emulator.pt"
 CHECKPOINT = MODEL + ".ckpt"  # cvsim6.training.core's default: the model path + ".ckpt"
 LOSSES = "results/training/structural/emulator_losses.csv"  # one row per epoch, appended
@@ -44,11 +42,6 @@ training:
 ARGS = [MODEL, "--configfile", "config/smoke.yaml", "longer.yaml"]
 
 
-def snakemake(work: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([SNAKEMAKE, *args], cwd=work, capture_output=True, text=True, timeout=900,
-                          stdin=subprocess.DEVNULL)
-
-
 def weights(work: Path) -> dict:
     return torch.load(work / MODEL, weights_only=True)
 
@@ -58,7 +51,7 @@ def reference(tmp_path_factory) -> Path:
     """The workflow after an uninterrupted run: data simulated, emulator trained, checkpoint kept."""
     work = copy_workflow(tmp_path_factory.mktemp("resume") / "reference")
     (work / "longer.yaml").write_text(LONGER)
-    proc = snakemake(work, "--cores", "2", *ARGS)
+    proc = snakemake("--cores", "2", *ARGS, cwd=work)
     assert proc.returncode == 0, proc.stderr[-5000:]
     assert torch.load(work / CHECKPOINT, weights_only=True)["epoch"] == EPOCHS
     return work
@@ -98,10 +91,10 @@ def test_killed_run_resumes_training_from_checkpoint(reference, tmp_path, sig):
 
     # What a user does next.
     if sig == signal.SIGKILL:  # snakemake had no chance to release its lock
-        locked = snakemake(work, "--cores", "2", *ARGS, "--rerun-incomplete")
+        locked = snakemake("--cores", "2", *ARGS, "--rerun-incomplete", cwd=work)
         assert locked.returncode != 0 and "--unlock" in locked.stderr, locked.stderr[-3000:]
-        assert snakemake(work, "--unlock", *ARGS).returncode == 0
-    proc = snakemake(work, "--cores", "2", *ARGS, "--rerun-incomplete")
+        assert snakemake("--unlock", *ARGS, cwd=work).returncode == 0
+    proc = snakemake("--cores", "2", *ARGS, "--rerun-incomplete", cwd=work)
     assert proc.returncode == 0, proc.stderr[-5000:]
     assert "train_emulator" in proc.stdout + proc.stderr
 

@@ -7,7 +7,8 @@ profile; every job except the local rules must have gone through sbatch (Snakema
 log gives the SLURM job ids, slurmctld's log confirms each was submitted, started in
 the profile's partition and exited 0), and the deterministic results (tables, parquet
 data, model weights) must equal the local run's. Needs root; skips only when not root
-or when SLURM is missing and apt-get cannot install it.
+or when SLURM is missing and apt-get cannot install it, and fails instead where
+``CVSIM6_REQUIRE_LOCAL=1`` (CI) says that a cluster must run.
 
 Each SLURM job costs about 10 s more than the same job run locally (two Snakemake
 start-ups per job: the sbatch script and the srun step), so the whole smoke workflow
@@ -22,7 +23,6 @@ import json
 import os
 import re
 import subprocess
-import sys
 import time
 from collections import Counter
 from pathlib import Path
@@ -33,13 +33,11 @@ import torch
 import yaml
 
 import slurm_cluster
-from test_workflow import ROOT, copy_workflow
+from conftest import LOCAL_EHR_CSV, REQUIRE_LOCAL, ROOT, copy_workflow, skip_or_fail, snakemake
 
 pytestmark = pytest.mark.slow
 
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 PROFILE = ROOT / "workflow" / "profiles" / "slurm"
-REAL_EHR = ROOT.parent / "shared" / "data" / "EHR_dataset.csv"
 SUBMITTED = re.compile(r"Job (\d+) has been submitted with SLURM jobid (\d+) \(log: (\S+)\)")
 #: How many seconds each stage took, printed at the end (pytest -s or -rA shows them).
 TIMINGS: dict[str, float] = {}
@@ -56,19 +54,23 @@ CHAIN_TARGETS = [
 
 def smoke_args() -> list[str]:
     """Targets and smoke config: CHAIN_TARGETS, or ``all`` with CVSIM6_SLURM_FULL=1 (the EHR
-    data from the local copy when there is one, else downloaded)."""
+    data from the local copy when there is one, else downloaded; under CVSIM6_REQUIRE_LOCAL=1
+    a missing local copy fails)."""
     if os.environ.get("CVSIM6_SLURM_FULL", "") not in ("", "0"):
         args = ["all", "--configfile", "config/smoke.yaml"]
-        if REAL_EHR.is_file():
-            args += ["--config", f"ehr_data={{'path': '{REAL_EHR}'}}"]
+        if LOCAL_EHR_CSV.is_file():
+            args += ["--config", f"ehr_data={{'path': '{LOCAL_EHR_CSV}'}}"]
+        elif REQUIRE_LOCAL:
+            pytest.fail(f"local copy of the EHR data not present: {LOCAL_EHR_CSV} (CVSIM6_REQUIRE_LOCAL is set)",
+                        pytrace=False)
         return args
     return [*CHAIN_TARGETS, "--configfile", "config/smoke.yaml"]
 
 
 def run_snakemake(work: Path, *args: str, timeout: float = 1800) -> subprocess.CompletedProcess:
+    """Snakemake in ``work``; its wall time (s) goes to TIMINGS."""
     t0 = time.monotonic()
-    proc = subprocess.run([SNAKEMAKE, *args], cwd=work, capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
+    proc = snakemake(*args, cwd=work, timeout=timeout)
     TIMINGS[work.name] = time.monotonic() - t0
     return proc
 
@@ -159,12 +161,13 @@ def compare_results(expected: Path, got: Path) -> tuple[list[str], Counter]:
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def cluster(request, tmp_path_factory):
-    """A running one-node SLURM cluster; its daemons stop when the module's tests end, pass or fail."""
+    """A running one-node SLURM cluster; its daemons stop when the module's tests end, pass or fail.
+    Where none can run here the test skips, or fails under CVSIM6_REQUIRE_LOCAL=1."""
     t0 = time.monotonic()
     try:
         slurm_cluster.ensure_installed()
     except slurm_cluster.Unavailable as exc:
-        pytest.skip(str(exc))
+        skip_or_fail(f"no SLURM cluster: {exc}")
     TIMINGS["install check"] = time.monotonic() - t0
     c = slurm_cluster.Cluster(tmp_path_factory.mktemp("slurm_cluster"), partition=profile_partition())
     request.addfinalizer(c.stop)
@@ -172,7 +175,7 @@ def cluster(request, tmp_path_factory):
     try:
         c.start()
     except slurm_cluster.Unavailable as exc:
-        pytest.skip(str(exc))
+        skip_or_fail(f"no SLURM cluster: {exc}")
     TIMINGS["cluster start"] = time.monotonic() - t0
     return c
 

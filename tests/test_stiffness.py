@@ -112,3 +112,30 @@ def test_eigen_series_extremes_along_reference(default_params):
     assert (sol.states(t_min)[0][[0, 2, 3, 5]] == 0).all()
     assert eig["SR"].iloc[rows["SR max"]] > 1e5
     assert eig["SR"].iloc[rows["SR min"]] == pytest.approx(4.395 / 0.635, rel=1e-2)
+
+
+def test_eigenvalue_figure_draws_each_eigenvalue_column(tmp_path, monkeypatch):
+    """Figure 2 from a small eigenvalue CSV: one series per lambda column in both panels, the
+    bottom one |Re lambda| floored at 1e-19 (an exact zero sits at the bottom edge)."""
+    import pandas as pd
+    from matplotlib.image import imread
+
+    from cvsim6.reporting import stiffness_figures
+
+    t = np.linspace(0.0, 1.0, 11)
+    lam = -np.outer(np.linspace(1.0, 2.0, 11), [500.0, 300.0, 4.0, 0.6, 1e-3, 0.0])
+    df = pd.DataFrame(lam, columns=list(stiffness.LAMBDA_COLUMNS))
+    df.insert(0, "t", t)
+    df["max_abs_imag"], df["SR"] = 0.0, 1e5
+    df.to_csv(tmp_path / "eig.csv", index=False)
+    kept = {}
+    save = stiffness_figures._save
+    monkeypatch.setattr(stiffness_figures, "_save", lambda fig, png, pdf: (kept.setdefault("fig", fig),
+                                                                           save(fig, png, pdf)))
+    stiffness_figures.eigenvalue_figure(str(tmp_path / "eig.csv"), str(tmp_path / "e.png"), str(tmp_path / "e.pdf"),
+                                        zero_eigenvalue_tol=1e-10)
+    top, bottom = kept["fig"].axes
+    np.testing.assert_array_equal(np.array([ln.get_ydata() for ln in top.get_lines()[:6]]).T, lam)
+    np.testing.assert_array_equal(bottom.get_lines()[5].get_ydata(), np.full(11, 1e-19))
+    assert [ln.get_label() for ln in top.get_lines()[:6]] == [rf"$\lambda_{j}$" for j in range(1, 7)]
+    assert imread(tmp_path / "e.png").shape[2] == 4 and (tmp_path / "e.pdf").stat().st_size > 5_000

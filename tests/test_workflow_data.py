@@ -4,8 +4,8 @@ import json
 import pandas as pd
 import pytest
 
+from conftest import copy_workflow, snakemake
 from cvsim6.data import datasets
-from test_workflow import copy_workflow, snakemake
 
 
 @pytest.mark.slow

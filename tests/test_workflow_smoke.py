@@ -16,6 +16,8 @@ import pandas as pd
 import pytest
 import yaml
 
+from conftest import (LOCAL_EHR_CSV, LOCAL_PUBLISHED, copy_workflow, needs_local_ehr, needs_published,
+                      require_local, snakemake)
 from cvsim6.data import datasets
 from cvsim6.studies import ehr_methods
 from cvsim6.studies import ehr as ehr_study
@@ -25,11 +27,7 @@ from cvsim6.data import priors
 from cvsim6 import registry
 from cvsim6.model import solver
 from cvsim6.model.equations import outside_domain
-from test_workflow import copy_workflow, snakemake
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-REAL = SHARED / "EHR_dataset.csv"
-PUBLISHED = SHARED / "paper_networks"
 SMOKE = ["--configfile", "config/smoke.yaml", "local.yaml"]
 #: Without the local EHR data (which target ``all`` needs) the training and structural stages run alone.
 STAGE_TARGETS = ["results/tables/structural_emulator_validation.md", "results/tables/ehr_architectures.md",
@@ -43,9 +41,6 @@ STAGE_TARGETS = ["results/tables/structural_emulator_validation.md", "results/ta
                  "results/structural/missing_data_trajectories.png", "results/structural/jacobian_spectra.png"]
 
 pytestmark = pytest.mark.slow
-needs_ehr_data = pytest.mark.skipif(not REAL.is_file(), reason="local copy of the EHR data not present")
-needs_published = pytest.mark.skipif(not (PUBLISHED.is_dir() and REAL.is_file()),
-                                     reason="local copies of the published networks and the EHR data not present")
 
 
 def digest(path: Path) -> str:
@@ -57,10 +52,10 @@ def work(tmp_path_factory) -> Path:
     """A copy of the workflow, with the local copies of the data in ``local.yaml``."""
     work = copy_workflow(tmp_path_factory.mktemp("smoke"))
     local = {}
-    if REAL.is_file():
-        local["ehr_data"] = {"path": str(REAL)}
-    if PUBLISHED.is_dir():
-        local["networks"] = {"published": {"path": str(PUBLISHED)}}
+    if LOCAL_EHR_CSV.is_file():
+        local["ehr_data"] = {"path": str(LOCAL_EHR_CSV)}
+    if LOCAL_PUBLISHED.is_dir():
+        local["networks"] = {"published": {"path": str(LOCAL_PUBLISHED)}}
     (work / "local.yaml").write_text(yaml.safe_dump(local))
     return work
 
@@ -68,8 +63,7 @@ def work(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def published_run(work) -> dict:
     """Target ``all`` with the published networks; what the tree held right after it."""
-    if not (PUBLISHED.is_dir() and REAL.is_file()):
-        pytest.skip("local copies of the published networks and the EHR data not present")
+    require_local("published", "ehr")
     proc = snakemake("--cores", "2", "all", *SMOKE, "config/published.yaml", cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     pub = work / "results" / "published"
@@ -82,15 +76,16 @@ def published_run(work) -> dict:
 @pytest.fixture(scope="module")
 def trained_run(work, request) -> Path:
     """This workflow's own networks, after the published run when there is one (one tree)."""
-    if PUBLISHED.is_dir() and REAL.is_file():
+    if LOCAL_PUBLISHED.is_dir() and LOCAL_EHR_CSV.is_file():
         request.getfixturevalue("published_run")
-    targets = ["all", "calibration"] if REAL.is_file() else STAGE_TARGETS
+    targets = ["all", "calibration"] if LOCAL_EHR_CSV.is_file() else STAGE_TARGETS
     proc = snakemake("--cores", "2", *targets, *SMOKE, cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return work
 
 
 @needs_published
+@needs_local_ehr
 def test_published_networks_run_without_training(work, published_run):
     pub = work / "results" / "published"
     # the converted networks: the paper's architecture, float64, with their origin recorded
@@ -113,6 +108,7 @@ def test_published_networks_run_without_training(work, published_run):
 
 
 @needs_published
+@needs_local_ehr
 def test_published_and_trained_results_sit_side_by_side(published_run, trained_run):
     work = trained_run
     assert (work / "results/models/ehr/flow_delta0.5.pt").is_file()
@@ -244,7 +240,7 @@ def test_structural_stage_end_to_end(trained_run):
         assert (work / fig).with_suffix(".pdf").is_file()
 
 
-@needs_ehr_data
+@needs_local_ehr
 def test_scorecard_shows_the_reconstruction_spread(trained_run):
     work = trained_run
     rec = json.loads((work / "results/tables/structural_manifold_reconstruction.json").read_text())
@@ -253,7 +249,7 @@ def test_scorecard_shows_the_reconstruction_spread(trained_run):
     assert len(row) == 1 and row["trained"].iloc[0] == pytest.approx(100 * rec["max_rel_l2_error_resampled"]["q50"])
 
 
-@needs_ehr_data
+@needs_local_ehr
 def test_ehr_stage_end_to_end(trained_run):
     work = trained_run
     table = pd.read_csv(work / "results/tables/ehr_error_per_output.csv").set_index("Output")
@@ -273,7 +269,7 @@ def test_ehr_stage_end_to_end(trained_run):
 
 
 
-@needs_ehr_data
+@needs_local_ehr
 def test_calibration_stage_end_to_end(trained_run):
     """Calibration tables of both methods, and the EHR patients' e_k three ways: the emulated
     way equals table 5, the simulated ways are the simulator's outputs of the stored sets."""

@@ -1,8 +1,11 @@
 """Command-line interface of the CVSim-6 digital twin.
 
 ``cvsim6 simulate PARAMS.csv -o OUT.csv``: PARAMS.csv has a header with the 23
-parameter names (clinical units, any column order, extra columns ignored); OUT.csv
-has the 16 outputs plus ``status``, one row per input row, in the same order.
+parameter names (clinical units, any column order); OUT.csv has the input's other
+columns (an id, say) first, then the 16 outputs plus ``status``, one row per input row,
+in the same order. A simulated output outside its physiological range
+(:data:`cvsim6.registry.PHYSIOLOGICAL_RANGE`) is kept, with a ``warning:`` line on stderr
+naming the line and the output (a compliance in CGS units, say); the exit code is unchanged.
 
 ``cvsim6 invert OBS.csv -o PARAMS.csv``: OBS.csv has any subset of the 16 output
 names as columns, one patient per row (blank = missing; an optional ``patient``
@@ -33,6 +36,9 @@ say) keeps one row with the reason in ``status``; an observed output far outside
 range the networks were trained on is inverted but named in ``outside_training``. Each
 such case prints a ``warning: FILE: line N ...`` line on stderr. Exit code 1 when a
 patient was not inverted (the others are written), else 0.
+
+Start-up: ``--help`` imports neither torch nor numba (the commands import what they use);
+the solver's kernel compiles on its first use, with a message, and is cached on disk.
 """
 from __future__ import annotations
 
@@ -47,13 +53,16 @@ import numpy as np
 import pandas as pd
 
 from cvsim6 import __version__
-from cvsim6.model import solver
-from cvsim6.data.datasets import load_split
-from cvsim6.studies.ehr import invert_observations, unit_message, unit_problems
-from cvsim6.model.equations import ParameterError
-from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
-from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES
+from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, PHYSIOLOGICAL_RANGE
 
+# The commands import the solver (numba) and the networks (torch) when they run, so that
+# ``cvsim6 --help`` starts at once; this module is no workflow rule's, so these late imports
+# hide no rerun trigger.
+
+#: The workflow command that converts only the paper's published EHR networks, and where
+#: they land: the quickest way to models for ``cvsim6 invert``.
+PUBLISHED_EHR_COMMAND = "snakemake --cores 1 convert_published_ehr"
+PUBLISHED_EHR_MODELS = "results/published/models/ehr"
 #: Cell texts read as blank (case-insensitive, after stripping spaces).
 BLANK = frozenset({"", "na", "n/a", "nan", "none", "null"})
 
@@ -160,6 +169,9 @@ def _lines(lines, limit: int = 5) -> str:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from cvsim6.model import solver
+    from cvsim6.model.equations import ParameterError
+
     if args.steps_per_cycle < solver.MIN_STEPS_PER_CYCLE:
         raise InputError(f"--steps-per-cycle {args.steps_per_cycle} is below the solver's minimum of "
                          f"{solver.MIN_STEPS_PER_CYCLE}")
@@ -180,11 +192,16 @@ def _simulate(args: argparse.Namespace) -> int:
         raise InputError(f"{path}: line {lines[row]}" + (f", column {col}" if col else "") + f": {why}")
     params = _numbers(df, list(PARAMETER_NAMES), path, lines)
     out = _check_output(args.output, [path])
+    if args.method == "batch" and not solver.kernel_is_cached():
+        print("compiling the solver on first use (about a minute; cached for later runs) ...", file=sys.stderr)
     try:
         result = solver.simulate(params, method=args.method, steps_per_cycle=args.steps_per_cycle,
                                  progress=args.progress)
     except ParameterError as exc:  # pragma: no cover - first_invalid_row found every such row
         raise InputError(f"{path}: {exc}") from None
+    _warn_unphysiological(result, path, lines)
+    extra = [c for c in df.columns if c not in PARAMETER_NAMES and c not in result.columns]
+    result = pd.concat([df[extra].reset_index(drop=True), result.reset_index(drop=True)], axis=1)
     _write_csv(result, out, "%.10g")
     flagged = result["status"] != "ok"
     msg = f"simulated {len(result)} parameter set(s) -> {out}"
@@ -195,7 +212,29 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn_unphysiological(result: pd.DataFrame, path: str, lines: np.ndarray, limit: int = 20) -> None:
+    """A ``warning:`` line on stderr per simulated output outside its physiological range
+    (at most ``limit``, then a count); rows flagged in ``status`` are left to that column."""
+    found = []
+    ok = (result["status"] == "ok").to_numpy()
+    for name, (low, high) in PHYSIOLOGICAL_RANGE.items():
+        values = result[name].to_numpy(float)
+        for i in np.flatnonzero(ok & ((values < low) | (values > high))):
+            found.append((i, f"{name} = {values[i]:.4g} outside its physiological range {low:g} to {high:g}"))
+    for i, message in sorted(found, key=lambda item: item[0])[:limit]:
+        print(f"warning: {path}: line {lines[i]}: {message} (parameters in clinical units?)", file=sys.stderr)
+    if len(found) > limit:
+        print(f"warning: {path}: {len(found) - limit} more output(s) outside their physiological range",
+              file=sys.stderr)
+
+
 def _invert(args: argparse.Namespace) -> int:
+    from cvsim6.data.datasets import load_split
+    from cvsim6.nets import DEFAULT_CORRECTOR_STEPS
+    from cvsim6.studies.ehr import invert_observations, unit_message, unit_problems
+
+    if args.corrector_steps is None:
+        args.corrector_steps = DEFAULT_CORRECTOR_STEPS
     for opt, value, low in (("--samples", args.samples, 1), ("--flow-samples", args.flow_samples, 1),
                             ("--reference-size", args.reference_size, 1),
                             ("--corrector-steps", args.corrector_steps, 0)):
@@ -236,8 +275,9 @@ def _invert(args: argparse.Namespace) -> int:
              "encoder_decoder": models / f"encoder_decoder_delta{tag}.pt"}
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
-        raise InputError(f"model file(s) not found: {', '.join(missing)} (train them with the workflow, "
-                         f"or pass --models and --noise-level)")
+        raise InputError(f"model file(s) not found: {', '.join(missing)}; the paper's networks in a few "
+                         f"seconds: `{PUBLISHED_EHR_COMMAND}` (then --models {PUBLISHED_EHR_MODELS}); "
+                         f"or train them with the workflow, or pass --models and --noise-level")
     out = _check_output(args.output, [path])
 
     def warn(pid, message: str) -> None:
@@ -274,6 +314,8 @@ def _invert(args: argparse.Namespace) -> int:
 def _load_model(path: Path):
     """A saved network; a file that is not one raises :class:`InputError`."""
     import pickle
+
+    from cvsim6.nets import load_model
 
     try:
         return load_model(path)
@@ -312,9 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     inv.add_argument("--reference-size", type=int, default=200,
                      help="reference rows for the OOD percentile (default 200: resolution 0.5 percentage points; "
                           "the time grows with it, once per distinct set of missing outputs)")
-    inv.add_argument("--corrector-steps", type=int, default=DEFAULT_CORRECTOR_STEPS,
-                     help=f"predictor-corrector rounds when decoding (default {DEFAULT_CORRECTOR_STEPS}, "
-                          "as the paper's code; 0 = off)")
+    inv.add_argument("--corrector-steps", type=int, default=None,
+                     help="predictor-corrector rounds when decoding (default: the library's, as the "
+                          "paper's code; 0 = off)")
     inv.add_argument("--seed", type=int, default=0,
                      help="seed of every random draw: completions, latent draws, OOD reference")
     inv.add_argument("--progress", action="store_true", help="show a progress bar")

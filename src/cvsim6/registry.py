@@ -107,6 +107,16 @@ OUTPUT_INDEX: dict[str, int] = {n: i for i, n in enumerate(OUTPUT_NAMES)}
 PARAMETER_BY_NAME: dict[str, Parameter] = {p.name: p for p in PARAMETERS}
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUTS}
 
+#: Wide adult ranges of the outputs (their units): a simulated value outside is possible in
+#: the model but seen in no patient, e.g. a compliance given in CGS instead of clinical units.
+#: ``cvsim6 simulate`` warns about such values; nothing else depends on them.
+PHYSIOLOGICAL_RANGE: dict[str, tuple[float, float]] = {
+    "Hr": (30.0, 220.0), "P_a_sys": (50.0, 260.0), "P_a_dia": (25.0, 150.0), "P_r_sys": (8.0, 120.0),
+    "P_r_dia": (-10.0, 35.0), "P_pa_sys": (8.0, 120.0), "P_pa_dia": (2.0, 70.0), "P_r_edp": (-10.0, 35.0),
+    "P_w": (0.0, 45.0), "P_cvp": (-5.0, 35.0), "V_l_sys": (5.0, 500.0), "V_l_dia": (30.0, 800.0),
+    "LVEF": (0.05, 0.9), "CO": (0.8, 20.0), "SVR": (200.0, 5000.0), "PVR": (0.0, 1500.0),
+}
+
 #: Compartment order used for states, pressures and volumes.
 COMPARTMENTS: tuple[str, ...] = ("l", "a", "v", "r", "pa", "pv")
 #: Flow order: edge k carries blood from compartment k to compartment k+1 (mod 6).

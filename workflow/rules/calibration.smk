@@ -99,21 +99,7 @@ rule calibration_summary:
     output:
         csv=f"{NET_TABLES}/calibration_summary.csv",
         md=f"{NET_TABLES}/calibration_summary.md",
-        coverage_figure=report(
-            f"{CALIBRATION}/coverage.png",
-            category="Calibration",
-            caption="../report/calibration_coverage.rst",
-        ),
-        rank_figure=report(
-            f"{CALIBRATION}/rank_ecdf_delta{calibration_figure_delta()}.png",
-            category="Calibration",
-            caption="../report/calibration_ranks.rst",
-        ),
-        recovery_figure=report(
-            f"{CALIBRATION}/recovery_delta{calibration_figure_delta()}.png",
-            category="Calibration",
-            caption="../report/calibration_recovery.rst",
-        ),
+        figure_data=f"{CALIBRATION}/figure_data.npz",
     log:
         f"{NET_LOGS}/calibration_summary.log",
     benchmark:
@@ -134,6 +120,41 @@ rule calibration_summary:
         rank_rtol=config["structural_study"]["rank_rtol"],
         nonidentifiable_share=config["calibration"]["nonidentifiable_share"],
         seed=config["seed"],
+    script:
+        "../scripts/call.py"
+
+
+rule calibration_figures:
+    input:
+        figure_data=rules.calibration_summary.output.figure_data,
+    output:
+        coverage_figure=report(
+            f"{CALIBRATION}/coverage.png",
+            category="Calibration",
+            caption="../report/calibration_coverage.rst",
+        ),
+        rank_figure=report(
+            f"{CALIBRATION}/rank_ecdf_delta{calibration_figure_delta()}.png",
+            category="Calibration",
+            caption="../report/calibration_ranks.rst",
+        ),
+        recovery_figure=report(
+            f"{CALIBRATION}/recovery_delta{calibration_figure_delta()}.png",
+            category="Calibration",
+            caption="../report/calibration_recovery.rst",
+        ),
+    log:
+        f"{NET_LOGS}/calibration_figures.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/calibration_figures.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        function="cvsim6.reporting.calibration_figures:calibration_figures",
     script:
         "../scripts/call.py"
 
@@ -219,5 +240,6 @@ rule ehr_error_methods:
 rule calibration:
     input:
         rules.calibration_summary.output,
+        rules.calibration_figures.output,
         rules.ehr_error_methods.output,
         expand(rules.plot_npe_losses.output.figure, delta=noise_tags("ehr")),

@@ -94,11 +94,32 @@ rule gather_study:
         "../scripts/call.py"
 
 
-rule data_histograms:
+rule data_histogram_counts:
     input:
         train=rules.gather_study.output.train,
         test=rules.gather_study.output.test,
         validation=rules.gather_study.output.validation,
+    output:
+        counts=f"{DATA}/{{study}}/histograms.csv",
+    log:
+        f"{LOGS}/data_histogram_counts/{{study}}.log",
+    benchmark:
+        f"{BENCHMARKS}/data_histogram_counts/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        function="cvsim6.data.datasets:histogram_counts",
+    script:
+        "../scripts/call.py"
+
+
+rule data_histograms:
+    input:
+        counts=rules.data_histogram_counts.output.counts,
     output:
         outputs_figure=report(
             f"{DATA}/{{study}}/outputs_histograms.png",
@@ -120,10 +141,10 @@ rule data_histograms:
         "../envs/cvsim6.yaml"
     threads: 1
     resources:
-        mem_mb=2000,
-        runtime=10,
+        mem_mb=1000,
+        runtime=5,
     params:
-        function="cvsim6.data.datasets:plot_histograms",
+        function="cvsim6.reporting.data_figures:plot_histograms",
         study=lambda w: w.study,
     script:
         "../scripts/call.py"

@@ -152,6 +152,6 @@ rule ehr_patient_figure:
         mem_mb=2000,
         runtime=10,
     params:
-        function="cvsim6.studies.ehr:ehr_patient_figure",
+        function="cvsim6.reporting.ehr_figures:ehr_patient_figure",
     script:
         "../scripts/call.py"

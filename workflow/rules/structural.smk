@@ -1,5 +1,7 @@
 # Structural identifiability study (paper section 3.3 and appendix C), from the
-# networks trained on the structural data (noise-free, delta = 0).
+# networks trained on the structural data (noise-free, delta = 0). Each computing rule
+# writes data only (tables, JSON, CSV); its `<name>_figure` rule draws the figure from
+# those files (cvsim6.reporting.structural_figures), so a figure edit reruns that rule only.
 
 STRUCT = f"{NET}/structural"
 SCFG = config["structural_study"]
@@ -92,11 +94,7 @@ rule structural_reconstruction:
         csv=f"{NET_TABLES}/structural_manifold_reconstruction.csv",
         summary=f"{NET_TABLES}/structural_manifold_reconstruction.json",
         md=f"{NET_TABLES}/structural_manifold_reconstruction.md",
-        figure=report(
-            f"{STRUCT}/manifold_trajectories.png",
-            category="Structural study",
-            caption="../report/structural_trajectories.rst",
-        ),
+        traces=f"{STRUCT}/manifold_trajectories.csv",
     log:
         f"{NET_LOGS}/structural_reconstruction.log",
     benchmark:
@@ -119,15 +117,40 @@ rule structural_reconstruction:
         "../scripts/call.py"
 
 
+rule structural_reconstruction_figure:
+    input:
+        traces=rules.structural_reconstruction.output.traces,
+        observation=rules.structural_observation.output.csv,
+        summary=rules.structural_reconstruction.output.summary,
+    output:
+        figure=report(
+            f"{STRUCT}/manifold_trajectories.png",
+            category="Structural study",
+            caption="../report/structural_trajectories.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_reconstruction_figure.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_reconstruction_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.structural_figures:manifold_trajectories_figure",
+        n_traces=SCFG["n_traces"],
+    script:
+        "../scripts/call.py"
+
+
 rule structural_parallel_coordinates:
     input:
         samples=rules.structural_manifold.output.samples,
     output:
-        figure=report(
-            f"{STRUCT}/manifold_parallel_coordinates.png",
-            category="Structural study",
-            caption="../report/structural_parallel_coordinates.rst",
-        ),
+        lines=f"{STRUCT}/manifold_parallel_coordinates.csv",
+        summary=f"{STRUCT}/manifold_parallel_coordinates.json",
     log:
         f"{NET_LOGS}/structural_parallel_coordinates.log",
     benchmark:
@@ -139,9 +162,35 @@ rule structural_parallel_coordinates:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.studies.structural:parallel_coordinates",
+        function="cvsim6.studies.structural:parallel_coordinates_data",
         prior=config["data"]["studies"]["structural"]["prior"],
         n_lines=SCFG["n_reconstruct"],
+    script:
+        "../scripts/call.py"
+
+
+rule structural_parallel_coordinates_figure:
+    input:
+        lines=rules.structural_parallel_coordinates.output.lines,
+        summary=rules.structural_parallel_coordinates.output.summary,
+    output:
+        figure=report(
+            f"{STRUCT}/manifold_parallel_coordinates.png",
+            category="Structural study",
+            caption="../report/structural_parallel_coordinates.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_parallel_coordinates_figure.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_parallel_coordinates_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.structural_figures:parallel_coordinates_figure",
     script:
         "../scripts/call.py"
 
@@ -152,11 +201,6 @@ rule structural_manifold_svd:
     output:
         csv=f"{STRUCT}/manifold_svd.csv",
         summary=f"{STRUCT}/manifold_svd.json",
-        figure=report(
-            f"{STRUCT}/manifold_svd.png",
-            category="Structural study",
-            caption="../report/structural_svd.rst",
-        ),
     log:
         f"{NET_LOGS}/structural_manifold_svd.log",
     benchmark:
@@ -168,7 +212,33 @@ rule structural_manifold_svd:
         mem_mb=1000,
         runtime=5,
     params:
-        function="cvsim6.studies.structural:manifold_svd_figure",
+        function="cvsim6.studies.structural:manifold_svd_modes",
+    script:
+        "../scripts/call.py"
+
+
+rule structural_manifold_svd_figure:
+    input:
+        csv=rules.structural_manifold_svd.output.csv,
+        summary=rules.structural_manifold_svd.output.summary,
+    output:
+        figure=report(
+            f"{STRUCT}/manifold_svd.png",
+            category="Structural study",
+            caption="../report/structural_svd.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_manifold_svd_figure.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_manifold_svd_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.structural_figures:manifold_svd_figure",
     script:
         "../scripts/call.py"
 
@@ -182,11 +252,7 @@ rule structural_missing_data:
         csv=f"{NET_TABLES}/structural_missing_data.csv",
         summary=f"{NET_TABLES}/structural_missing_data.json",
         md=f"{NET_TABLES}/structural_missing_data.md",
-        figure=report(
-            f"{STRUCT}/missing_data_trajectories.png",
-            category="Structural study",
-            caption="../report/structural_missing.rst",
-        ),
+        traces=f"{STRUCT}/missing_data_trajectories.csv",
     log:
         f"{NET_LOGS}/structural_missing_data.log",
     benchmark:
@@ -210,6 +276,35 @@ rule structural_missing_data:
         "../scripts/call.py"
 
 
+rule structural_missing_data_figure:
+    input:
+        traces=rules.structural_missing_data.output.traces,
+        observation=rules.structural_observation.output.csv,
+    output:
+        figure=report(
+            f"{STRUCT}/missing_data_trajectories.png",
+            category="Structural study",
+            caption="../report/structural_missing.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_missing_data_figure.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_missing_data_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.structural_figures:missing_data_figure",
+        missing=SCFG["missing"],
+        top_k=SCFG["missing_top"],
+        n_latent=SCFG["missing_latent"],
+    script:
+        "../scripts/call.py"
+
+
 rule structural_jacobian:
     input:
         samples=rules.structural_manifold.output.samples,
@@ -217,11 +312,7 @@ rule structural_jacobian:
         csv=f"{NET_TABLES}/structural_local_identifiability.csv",
         summary=f"{NET_TABLES}/structural_local_identifiability.json",
         md=f"{NET_TABLES}/structural_local_identifiability.md",
-        figure=report(
-            f"{STRUCT}/jacobian_spectra.png",
-            category="Structural study",
-            caption="../report/structural_jacobian.rst",
-        ),
+        spectra=f"{STRUCT}/jacobian_spectra.csv",
     log:
         f"{NET_LOGS}/structural_jacobian.log",
     benchmark:
@@ -238,6 +329,32 @@ rule structural_jacobian:
         simulator=config["simulator"],
         n_points=SCFG["jacobian_points"],
         rel_step=SCFG["jacobian_rel_step"],
+        rank_rtol=SCFG["rank_rtol"],
+    script:
+        "../scripts/call.py"
+
+
+rule structural_jacobian_figure:
+    input:
+        spectra=rules.structural_jacobian.output.spectra,
+    output:
+        figure=report(
+            f"{STRUCT}/jacobian_spectra.png",
+            category="Structural study",
+            caption="../report/structural_jacobian.rst",
+        ),
+    log:
+        f"{NET_LOGS}/structural_jacobian_figure.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/structural_jacobian_figure.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.structural_figures:jacobian_spectra_figure",
         rank_rtol=SCFG["rank_rtol"],
     script:
         "../scripts/call.py"

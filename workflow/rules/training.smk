@@ -212,10 +212,34 @@ rule emulator_validation:
         "../scripts/call.py"
 
 
-rule emulator_l2_histogram:
+rule emulator_l2_errors:
     input:
         model=f"{MODELS}/{{study}}/emulator.pt",
         validation=f"{DATA}/{{study}}/validation.parquet",
+    output:
+        errors=f"{NET_TRAINING}/{{study}}/emulator_l2_errors.csv",
+        summary=f"{NET_TRAINING}/{{study}}/emulator_l2_errors.json",
+    log:
+        f"{NET_LOGS}/emulator_l2_errors/{{study}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/emulator_l2_errors/{{study}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5,
+    params:
+        function="cvsim6.studies.evaluation:emulator_l2_errors",
+        study=lambda w: w.study,
+    script:
+        "../scripts/call.py"
+
+
+rule emulator_l2_histogram:
+    input:
+        errors=rules.emulator_l2_errors.output.errors,
+        summary=rules.emulator_l2_errors.output.summary,
     output:
         figure=report(
             f"{NET_TRAINING}/{{study}}/emulator_l2_errors.png",
@@ -223,7 +247,6 @@ rule emulator_l2_histogram:
             subcategory="{study}",
             caption="../report/emulator_l2.rst",
         ),
-        summary=f"{NET_TRAINING}/{{study}}/emulator_l2_errors.json",
     log:
         f"{NET_LOGS}/emulator_l2_histogram/{{study}}.log",
     benchmark:
@@ -232,18 +255,40 @@ rule emulator_l2_histogram:
         "../envs/cvsim6.yaml"
     threads: 1
     resources:
+        mem_mb=1000,
+        runtime=5,
+    params:
+        function="cvsim6.reporting.evaluation_figures:emulator_l2_histogram",
+    script:
+        "../scripts/call.py"
+
+
+rule flow_samples:
+    input:
+        flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
+    output:
+        samples=f"{NET_TRAINING}/{{study}}/flow_delta{{delta}}_samples.parquet",
+    log:
+        f"{NET_LOGS}/flow_samples/{{study}}_delta{{delta}}.log",
+    benchmark:
+        f"{NET_BENCHMARKS}/flow_samples/{{study}}_delta{{delta}}.tsv"
+    conda:
+        "../envs/cvsim6.yaml"
+    threads: 1
+    resources:
         mem_mb=2000,
         runtime=5,
     params:
-        function="cvsim6.studies.evaluation:emulator_l2_histogram",
-        study=lambda w: w.study,
+        function="cvsim6.studies.evaluation:flow_samples",
+        n_samples=20000,
+        seed=config["seed"],
     script:
         "../scripts/call.py"
 
 
 rule flow_marginals:
     input:
-        flow=f"{MODELS}/{{study}}/flow_delta{{delta}}.pt",
+        samples=rules.flow_samples.output.samples,
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
         figure=report(
@@ -263,8 +308,6 @@ rule flow_marginals:
         mem_mb=2000,
         runtime=5,
     params:
-        function="cvsim6.studies.evaluation:flow_marginals",
-        n_samples=20000,
-        seed=config["seed"],
+        function="cvsim6.reporting.evaluation_figures:flow_marginals",
     script:
         "../scripts/call.py"

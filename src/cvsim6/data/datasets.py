@@ -23,7 +23,6 @@ import pyarrow.parquet as pq
 from cvsim6 import __version__
 from cvsim6.data import priors
 from cvsim6.model import solver
-from cvsim6.reporting.figures import histogram_grid
 from cvsim6.registry import OUTPUT_BY_NAME, OUTPUT_NAMES, PARAMETER_BY_NAME, PARAMETER_NAMES
 
 log = logging.getLogger(__name__)
@@ -236,9 +235,21 @@ def gather_study(
     log.info("%s: %s (%d flagged)", study, sizes, n_bad)
 
 
-def plot_histograms(train: str, test: str, validation: str, outputs_figure: str, inputs_figure: str,
-                    study: str) -> None:
-    """Histograms of the 16 outputs and the 23 inputs over all rows of a study."""
+#: Bins of each column's histogram (equal widths over the column's range).
+HISTOGRAM_BINS = 50
+
+
+def histogram_counts(train: str, test: str, validation: str, counts: str, bins: int = HISTOGRAM_BINS) -> None:
+    """Histograms of the 23 inputs and 16 outputs over all rows of a study's three splits, to
+    the CSV ``counts``: one row per column and bin (``column``, ``bin``, its edges ``left`` and
+    ``right`` in the column's registry unit, ``count``). ``bins`` equal bins span each column's
+    range, the last one closed (``numpy.histogram``); Hr, a parameter and an output, is listed once."""
     df = pd.concat([read_dataset(p) for p in (train, test, validation)], ignore_index=True)
-    histogram_grid(df, OUTPUT_NAMES, outputs_figure, title=f"{study} study: outputs ({len(df):,} sets)")
-    histogram_grid(df, PARAMETER_NAMES, inputs_figure, title=f"{study} study: inputs ({len(df):,} sets)")
+    parts = []
+    for name in dict.fromkeys(PARAMETER_NAMES + OUTPUT_NAMES):
+        n, edges = np.histogram(df[name].to_numpy(), bins=int(bins))
+        parts.append(pd.DataFrame({"column": name, "bin": np.arange(len(n)), "left": edges[:-1],
+                                   "right": edges[1:], "count": n}))
+    Path(counts).parent.mkdir(parents=True, exist_ok=True)
+    pd.concat(parts, ignore_index=True).to_csv(counts, index=False)
+    log.info("histograms of %d columns over %d rows (%d bins each)", len(parts), len(df), bins)

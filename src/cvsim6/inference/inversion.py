@@ -24,7 +24,8 @@ from cvsim6.nets import DEFAULT_CORRECTOR_STEPS
 from cvsim6.registry import N_OUTPUTS
 
 
-def _generator(seed: int) -> torch.Generator:
+def seeded_torch_generator(seed: int) -> torch.Generator:
+    """A CPU ``torch.Generator`` seeded with ``seed``: the random stream of every draw here."""
     return torch.Generator().manual_seed(int(seed))
 
 
@@ -62,7 +63,7 @@ def complete_missing(flow, y_obs: np.ndarray, n_samples: int, top_k: int = 1, se
         parts = []
         for b in range(b0, min(n_blocks, b0 + per_chunk)):
             n = min(SAMPLE_BLOCK, n_samples - b * SAMPLE_BLOCK)
-            parts.append(flow.sample_physical(n, generator=_generator(_block_seed(seed, b))))
+            parts.append(flow.sample_physical(n, generator=seeded_torch_generator(_block_seed(seed, b))))
         y = np.vstack(parts)
         y[:, ~missing] = y_obs[~missing]
         lp = np.asarray(flow.log_prob_physical(y), float)
@@ -85,7 +86,8 @@ def decode_latent(encdec, y: np.ndarray, n_latent: int, seed: int = 0,
     Returns parameters of shape (n, n_latent, 23), physical units.
     """
     y = np.atleast_2d(np.asarray(y, float))
-    w = torch.randn(len(y) * n_latent, encdec.latent_dim, generator=_generator(seed), dtype=torch.float64)
+    w = torch.randn(len(y) * n_latent, encdec.latent_dim, generator=seeded_torch_generator(seed),
+                    dtype=torch.float64)
     v = encdec.invert(np.repeat(y, n_latent, axis=0), w.numpy(), corrector_steps=corrector_steps)
     return np.asarray(v).reshape(len(y), n_latent, -1)
 
@@ -126,7 +128,7 @@ def reference_scores(flow, y_simulated: np.ndarray, missing: np.ndarray, n_sampl
         return np.array([complete_missing(flow, np.where(missing, np.nan, r), n_samples, seed=seed)[1][0]
                          for r in y])
     samples = np.vstack([flow.sample_physical(min(SAMPLE_BLOCK, n_samples - b * SAMPLE_BLOCK),
-                                              generator=_generator(_block_seed(seed, b)))
+                                              generator=seeded_torch_generator(_block_seed(seed, b)))
                          for b in range(n_blocks)])
     per_pass = max(1, int(max_rows_per_pass) // len(samples))
     out = np.empty(len(y))

@@ -156,6 +156,18 @@ def _check_schedule(steps_per_cycle: int, n_cycles: int, window_cycles: int) -> 
         raise ValueError(f"window_cycles = {window_cycles} must lie in [1, n_cycles = {n_cycles})")
 
 
+def kernel_is_cached() -> bool:
+    """Whether the batch kernel is compiled in this process or cached on disk for this
+    version of its source (numba's index file); False when that cannot be told. A first
+    call without either compiles it, which takes up to a minute."""
+    if _kernel.batch.signatures:
+        return True
+    try:  # numba's own cache index: empty when missing or written for other source
+        return bool(_kernel.batch._cache._cache_file._load_index())
+    except Exception:  # noqa: BLE001 - a private API: any failure means "cannot tell"
+        return False
+
+
 def simulate_batch(
     params,
     steps_per_cycle: int = DEFAULT_STEPS_PER_CYCLE,

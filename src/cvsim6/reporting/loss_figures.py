@@ -9,15 +9,12 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 import pandas as pd
+from matplotlib.ticker import FormatStrFormatter, MaxNLocator
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.ticker import FormatStrFormatter, MaxNLocator  # noqa: E402
-
-from cvsim6 import nets as networks  # noqa: E402
+from cvsim6 import nets as networks
+from cvsim6.reporting.figures import subplots
 
 #: y-axis label per kind of network (the file-name stem before ``_delta``).
 LOSS_LABELS = {
@@ -179,7 +176,7 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     parts = [c[len("train_"):] for c in df.columns if c.startswith("train_") and c != "train_loss"]
     healthy = ~(divergence_epochs(df["train_loss"]) | divergence_epochs(df["test_loss"]))
     cuts = {}
-    fig, axes = plt.subplots(1, 2 if parts else 1, figsize=(12 if parts else 7, 4.5), squeeze=False)
+    fig, axes = subplots(1, 2 if parts else 1, figsize=(12 if parts else 7, 4.5), squeeze=False)
     ax = axes[0, 0]
     ax.plot(epochs, df["train_loss"], label="train", lw=1.2)
     tested = df[np.isfinite(df["test_loss"])]
@@ -229,5 +226,4 @@ def plot_losses(losses_csv: str | Path, figure: str | Path, title: str = "", yla
     fig.tight_layout()
     Path(figure).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(figure, dpi=150)
-    plt.close(fig)
     return cuts

@@ -8,14 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from cvsim6 import registry  # noqa: E402
-from cvsim6.model.stiffness import LAMBDA_COLUMNS  # noqa: E402
+from cvsim6 import registry
+from cvsim6.reporting.figures import subplots
 
 DPI = 150
 #: Units from the registry: pressures (mmHg), volumes (mL), compliances (mL/mmHg).
@@ -34,7 +33,6 @@ def _save(fig, png: str, pdf: str) -> None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=DPI, bbox_inches="tight")
     fig.savefig(pdf, bbox_inches="tight")
-    plt.close(fig)
 
 
 def _open_intervals(t: np.ndarray, is_open: np.ndarray) -> list[tuple[float, float]]:
@@ -52,10 +50,11 @@ def eigenvalue_figure(eigenvalues: str, png: str, pdf: str, zero_eigenvalue_tol:
     """
     df = pd.read_csv(eigenvalues)
     t = df["t"].to_numpy()
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(10.5, 7.5), sharex=True)
-    colors = plt.cm.viridis(np.linspace(0, 0.9, 6))
+    fig, (ax1, ax2) = subplots(2, 1, figsize=(10.5, 7.5), sharex=True)
+    colors = matplotlib.colormaps["viridis"](np.linspace(0, 0.9, 6))
     floor = 1e-19
-    for j, c in enumerate(LAMBDA_COLUMNS):
+    lambdas = [c for c in df.columns if c.startswith("lambda_")]  # model.stiffness.LAMBDA_COLUMNS, in order
+    for j, c in enumerate(lambdas):
         lam = df[c].to_numpy()
         ax1.plot(t, lam, ".", ms=1.5, color=colors[j], label=rf"$\lambda_{j + 1}$")
         ax2.plot(t, np.maximum(np.abs(lam), floor), ".", ms=1.5, color=colors[j], label=rf"$\lambda_{j + 1}$")
@@ -86,7 +85,7 @@ def radar_figure(eigenvectors: str, png: str, pdf: str, instant: str) -> None:
     df = df[df["instant"] == instant].sort_values("index")
     t = float(df["t"].iloc[0])
     angles = np.linspace(0, 2 * np.pi, 6, endpoint=False)
-    fig, axes = plt.subplots(1, 6, figsize=(17, 3.8), subplot_kw={"projection": "polar"})
+    fig, axes = subplots(1, 6, figsize=(17, 3.8), subplot_kw={"projection": "polar"})
     for ax, (_, row) in zip(axes, df.iterrows()):
         r = np.array([row[f"Q_{c}"] for c in registry.COMPARTMENTS])
         ax.plot(np.append(angles, angles[0]), np.append(r, r[0]), color="tab:blue", lw=1.5)
@@ -118,7 +117,7 @@ def sr_dynamics_figure(eigenvalues: str, trajectory: str, png: str, pdf: str) ->
     ]
     side_valves = {"left": ("mitral", "aortic"), "right": ("tricuspid", "pulmonary")}
     intervals = {v: _open_intervals(t, tr[f"open_{v}"].to_numpy()) for v in VALVE_COLORS}
-    fig, axes = plt.subplots(4, 2, figsize=(13, 12), sharex=True)
+    fig, axes = subplots(4, 2, figsize=(13, 12), sharex=True)
     for ax, (col, label, side) in zip(axes.ravel(), panels):
         for v in side_valves[side]:
             for a, b in intervals[v]:
@@ -136,9 +135,9 @@ def sr_dynamics_figure(eigenvalues: str, trajectory: str, png: str, pdf: str) ->
         ax.set_xlim(t[0], t[-1])
     axes[0, 0].set_title("Left heart (mitral, aortic valves)")
     axes[0, 1].set_title("Right heart (tricuspid, pulmonary valves)")
-    handles = [plt.Line2D([], [], color="k", lw=1.4, label="model variable (left axis)"),
-               plt.Line2D([], [], color=SR_COLOR, lw=1.2, label="stiffness ratio SR(t) (right axis, log)")]
-    handles += [matplotlib.patches.Patch(color=c, alpha=0.3, label=f"{v} valve open") for v, c in VALVE_COLORS.items()]
+    handles = [Line2D([], [], color="k", lw=1.4, label="model variable (left axis)"),
+               Line2D([], [], color=SR_COLOR, lw=1.2, label="stiffness ratio SR(t) (right axis, log)")]
+    handles += [Patch(color=c, alpha=0.3, label=f"{v} valve open") for v, c in VALVE_COLORS.items()]
     fig.legend(handles=handles, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.04), fontsize=10)
     fig.tight_layout()
     _save(fig, png, pdf)
@@ -154,7 +153,7 @@ def rk4_figure(series: str, png: str, pdf: str) -> None:
     colors = dict(zip(rk, ["tab:blue", "tab:orange", "tab:red", "tab:brown", "tab:pink"]))
     panels = [("P_l", f"$P_l$ ({U_P})"), ("Q_l_out", f"$Q_{{l,out}}$ ({U_Q})"),
               ("V_l", f"$V_l$ ({U_V})"), ("V_total", rf"$\sum V$ ({U_V})")]
-    fig, axes = plt.subplots(2, 2, figsize=(13, 8.5), sharex=True)
+    fig, axes = subplots(2, 2, figsize=(13, 8.5), sharex=True)
     for ax, (col, label) in zip(axes.ravel(), panels):
         d = df[df["method"] == ref]
         ax.plot(d["t"], d[col], color="k", lw=2.2, label=ref)

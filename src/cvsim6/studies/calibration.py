@@ -14,7 +14,6 @@ parameter's mean null-space share above ``nonidentifiable_share``.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from pathlib import Path
 
@@ -29,7 +28,6 @@ from cvsim6 import nets as nw
 from cvsim6.data.datasets import load_split
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.inference.npe import load_npe
-from cvsim6.reporting.figures import save_figure
 from cvsim6.data.priors import prior_bounds
 from cvsim6.registry import PARAMETER_NAMES
 from cvsim6.reporting.tables import to_markdown
@@ -38,7 +36,6 @@ log = logging.getLogger(__name__)
 
 #: The two inverse methods compared, in table and legend order.
 METHODS = ("inVAErt", "NPE")
-_COLORS = {"inVAErt": "tab:blue", "NPE": "tab:orange"}
 
 
 def calibration_cases(validation: str, n_cases: int, noise_level: float, seed: int
@@ -101,14 +98,14 @@ def _losses_seconds(paths: list[str]) -> dict[float, float]:
     return out
 
 
-def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md: str,
-                        coverage_figure: str, rank_figure: str, recovery_figure: str, prior: dict,
-                        simulator: dict, figure_noise_level: float, identifiability_points: int,
+def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md: str, figure_data: str,
+                        prior: dict, simulator: dict, figure_noise_level: float, identifiability_points: int,
                         rel_step: float, rank_rtol: float, nonidentifiable_share: float, seed: int,
                         invaert_losses: list[str] | tuple = ()) -> None:
-    """Workflow step: the calibration table (one row per method, delta and parameter) and its
-    Markdown summary, and the three figures (coverage curves for every delta; rank ECDFs and
-    recovery at ``figure_noise_level``)."""
+    """Workflow step: the calibration table (CSV, one row per method, delta and parameter), its
+    Markdown summary, and the data of the three calibration figures (``figure_data``, NPZ, see
+    :func:`write_figure_data`: coverage curves for every delta; ranks and recovery at
+    ``figure_noise_level``), drawn by :mod:`cvsim6.reporting.calibration_figures`."""
     lo, hi = prior_bounds(prior)
     runs = [dict(np.load(p)) for p in samples]
     runs.sort(key=lambda r: float(r["noise_level"]))
@@ -117,6 +114,33 @@ def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md:
     nonid = share > float(nonidentifiable_share)
     log.info("local Jacobian ranks at %d cases: %s; non-identifiable: %s", len(ranks),
              dict(zip(*np.unique(ranks, return_counts=True))), [n for n, b in zip(PARAMETER_NAMES, nonid) if b])
+    table, curves = diagnostics_table(runs, lo, hi, share, nonid, seed)
+    Path(csv).parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(csv, index=False)
+    summary = _method_summary(table, runs, npe_models, invaert_losses)
+    fig_d = float(figure_noise_level)
+    detail = _parameter_detail(table, share, nonid, fig_d)
+    n_cases, n_samples = int(table["n_cases"].iloc[0]), int(table["n_samples"].iloc[0])
+    text = to_markdown(summary, f"Calibration on {n_cases} simulated validation cases of the EHR prior, "
+                                f"{n_samples} samples per case and method. SBC: KS test of rank uniformity; "
+                                "coverage error: mean |empirical - nominal| of central intervals at levels "
+                                "0.05..0.95; TARP ATC: 0 calibrated, < 0 over-confident, > 0 under-confident; "
+                                "contraction 1 - Var_post/Var_prior; NRMSE of the posterior mean in prior "
+                                "standard deviations; non-identifiable: mean Jacobian null-space share > "
+                                f"{nonidentifiable_share:g}. Training (s): NPE wall time; inVAErt: its "
+                                "encoder/decoder epochs (not the emulator it trains through, shared by all noise "
+                                "levels; empty when the networks were not trained here)")
+    text += "\n" + to_markdown(detail, f"Per parameter at delta = {fig_d:g}")
+    Path(md).write_text(text, encoding="utf-8")
+    fig_run = next((r for r in runs if float(r["noise_level"]) == fig_d), runs[0])
+    write_figure_data(figure_data, curves, fig_run, nonid, lo, hi)
+
+
+def diagnostics_table(runs: list[dict], lo: np.ndarray, hi: np.ndarray, share: np.ndarray, nonid: np.ndarray,
+                      seed: int) -> tuple[pd.DataFrame, dict]:
+    """One row per method, noise level and parameter (diagnostics of
+    :mod:`cvsim6.inference.calibration`, unitless), and per ``(method, delta)`` the ``diag`` and
+    ``tarp`` results the figures draw. ``runs``: the sample files' arrays, by noise level."""
     rows, curves = [], {}
     for r in runs:
         d = float(r["noise_level"])
@@ -130,10 +154,13 @@ def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md:
                              "coverage_error": diag["coverage_error"][j], "contraction": diag["contraction"][j],
                              "nrmse": diag["nrmse"][j], "tarp_atc": tarp["atc"], "tarp_ks_pvalue": tarp["ks_pvalue"],
                              "n_cases": len(r["theta"]), "n_samples": r[m].shape[1]})
-    table = pd.DataFrame(rows)
-    Path(csv).parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(csv, index=False)
+    return pd.DataFrame(rows), curves
 
+
+def _method_summary(table: pd.DataFrame, runs: list[dict], npe_models: list[str],
+                    invaert_losses: list[str] | tuple) -> pd.DataFrame:
+    """One row per method and noise level: counts and means of the diagnostics, and the
+    sampling and training wall times (s)."""
     npe_info = {float(info.get("noise_level", np.nan)): info for info in (load_npe(p).info for p in npe_models)}
     inv_seconds = _losses_seconds(list(invaert_losses))
     summary = []
@@ -152,120 +179,47 @@ def calibration_summary(samples: list[str], npe_models: list[str], csv: str, md:
             "Training (s)": (npe_info.get(d, {}).get("train_seconds", np.nan) if m == "NPE"
                              else inv_seconds.get(d, np.nan)),
         })
-    summary = pd.DataFrame(summary)
-    fig_d = float(figure_noise_level)
-    per_param = table[table["noise_level"] == fig_d].pivot(index="parameter", columns="method")
+    return pd.DataFrame(summary)
+
+
+def _parameter_detail(table: pd.DataFrame, share: np.ndarray, nonid: np.ndarray, delta: float) -> pd.DataFrame:
+    """Per parameter at noise level ``delta``: its identifiability and each method's diagnostics."""
+    per_param = table[table["noise_level"] == delta].pivot(index="parameter", columns="method")
     detail = pd.DataFrame({"Parameter": list(PARAMETER_NAMES),
                            "Non-identifiable": ["yes" if b else "" for b in nonid], "Null-space share": share})
     for col, label in (("sbc_pvalue", "SBC p"), ("coverage_error", "Coverage error"),
                        ("contraction", "Contraction"), ("nrmse", "NRMSE")):
         for m in METHODS:
             detail[f"{label} ({m})"] = per_param.loc[list(PARAMETER_NAMES), (col, m)].to_numpy()
-    n_cases, n_samples = int(table["n_cases"].iloc[0]), int(table["n_samples"].iloc[0])
-    text = to_markdown(summary, f"Calibration on {n_cases} simulated validation cases of the EHR prior, "
-                                f"{n_samples} samples per case and method. SBC: KS test of rank uniformity; "
-                                "coverage error: mean |empirical - nominal| of central intervals at levels "
-                                "0.05..0.95; TARP ATC: 0 calibrated, < 0 over-confident, > 0 under-confident; "
-                                "contraction 1 - Var_post/Var_prior; NRMSE of the posterior mean in prior "
-                                "standard deviations; non-identifiable: mean Jacobian null-space share > "
-                                f"{nonidentifiable_share:g}. Training (s): NPE wall time; inVAErt: its "
-                                "encoder/decoder epochs (not the emulator it trains through, shared by all noise "
-                                "levels; empty when the networks were not trained here)")
-    text += "\n" + to_markdown(detail, f"Per parameter at delta = {fig_d:g}")
-    Path(md).write_text(text, encoding="utf-8")
-    _coverage_figure(curves, sorted({d for _, d in curves}), coverage_figure)
-    fig_run = next((r for r in runs if float(r["noise_level"]) == fig_d), runs[0])
-    _rank_figure({m: curves[(m, float(fig_run["noise_level"]))]["diag"]["ranks"] for m in METHODS},
-                 fig_run["inVAErt"].shape[1], nonid, float(fig_run["noise_level"]), rank_figure)
-    _recovery_figure(fig_run, nonid, lo, hi, recovery_figure)
+    return detail
 
 
-def _coverage_figure(curves: dict, deltas: list[float], path: str) -> None:
-    import matplotlib.pyplot as plt
+def write_figure_data(path: str, curves: dict, run: dict, nonid: np.ndarray, lo: np.ndarray,
+                      hi: np.ndarray) -> None:
+    """The arrays the calibration figures draw, in one ``.npz`` (M methods, D noise levels,
+    L coverage levels, n cases, 23 parameters; all unitless):
 
-    levels = calibration.COVERAGE_LEVELS
-    fig, axes = plt.subplots(1, len(deltas), figsize=(3.6 * len(deltas), 3.8), squeeze=False, sharey=True)
-    for ax, d in zip(axes[0], deltas):
-        ax.plot([0, 1], [0, 1], color="k", lw=0.8, ls=":")
-        for m in METHODS:
-            c = curves[(m, d)]
-            cov = c["diag"]["coverage"]
-            ax.plot(levels, cov, color=_COLORS[m], lw=0.5, alpha=0.2)
-            ax.plot(levels, cov.mean(axis=1), color=_COLORS[m], lw=2.2, label=f"{m}: marginal (mean of 23)")
-            ax.plot(c["tarp"]["alpha"], c["tarp"]["ecp"], color=_COLORS[m], lw=1.4, ls="--",
-                    label=f"{m}: TARP (joint)")
-        ax.set_title(f"delta = {d:g}")
-        ax.set_xlabel("nominal level of the central interval")
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 1)
-        ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("empirical coverage")
-    axes[0, -1].legend(fontsize=7, loc="lower right")
-    fig.suptitle("Coverage of the true parameters (thin lines: one per parameter; dotted: calibrated)")
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
-def _panel_title(ax, name: str, nonid: bool) -> None:
-    ax.set_title(name + (" (non-id.)" if nonid else ""), fontsize=9, color="tab:red" if nonid else "k")
-
-
-def _rank_figure(ranks: dict, n_samples: int, nonid: np.ndarray, delta: float, path: str) -> None:
-    """Per parameter, ECDF of the normalized ranks minus the uniform CDF, with the 95% KS band."""
-    import matplotlib.pyplot as plt
-
-    ncols = 6
-    nrows = math.ceil(len(PARAMETER_NAMES) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.1 * nrows), squeeze=False, sharex=True)
-    grid = np.linspace(0, 1, 201)
-    n_cases = len(next(iter(ranks.values())))
-    band = 1.358 / math.sqrt(n_cases)
-    for j, ax in enumerate(axes.flat):
-        if j >= len(PARAMETER_NAMES):
-            ax.set_visible(False)
-            continue
-        ax.fill_between(grid, -band, band, color="0.85", lw=0)
-        for m in METHODS:
-            u = np.sort((ranks[m][:, j] + 0.5) / (n_samples + 1))
-            ax.plot(grid, np.searchsorted(u, grid, side="right") / len(u) - grid, color=_COLORS[m], lw=1.2,
-                    label=m)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set_ylim(-1, 1)
-        ax.tick_params(labelsize=7)
-        _panel_title(ax, PARAMETER_NAMES[j], bool(nonid[j]))
-    axes.flat[0].legend(fontsize=7, loc="lower left")
-    fig.suptitle(f"SBC rank ECDF minus uniform, delta = {delta:g} (gray: 95% band of a calibrated sampler; "
-                 "above 0 on the left: true values sit low in the samples)", fontsize=10)
-    fig.supxlabel("normalized rank of the true value among the samples", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
-def _recovery_figure(run: dict, nonid: np.ndarray, lo: np.ndarray, hi: np.ndarray, path: str) -> None:
-    """Per parameter, the posterior mean against the true value (both in prior units [0, 1])."""
-    import matplotlib.pyplot as plt
-
-    ncols = 6
-    nrows = math.ceil(len(PARAMETER_NAMES) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.4 * nrows), squeeze=False)
-    theta = (run["theta"] - lo) / (hi - lo)
-    for j, ax in enumerate(axes.flat):
-        if j >= len(PARAMETER_NAMES):
-            ax.set_visible(False)
-            continue
-        ax.plot([0, 1], [0, 1], color="k", lw=0.6, ls=":")
-        for m in METHODS:
-            mean = (run[m][:, :, j].mean(axis=1) - lo[j]) / (hi[j] - lo[j])
-            ax.scatter(theta[:, j], mean, s=3, alpha=0.5, color=_COLORS[m], label=m, lw=0)
-        ax.set_xlim(-0.05, 1.05)
-        ax.set_ylim(-0.25, 1.25)
-        ax.tick_params(labelsize=7)
-        _panel_title(ax, PARAMETER_NAMES[j], bool(nonid[j]))
-    axes.flat[0].legend(fontsize=7, markerscale=3, loc="upper left")
-    fig.suptitle(f"Recovery: posterior mean against the true value, delta = {float(run['noise_level']):g} "
-                 "(prior box scaled to [0, 1]; a flat cloud: the data do not inform the parameter)", fontsize=10)
-    fig.supxlabel("true value (fraction of the prior width)", fontsize=9)
-    fig.supylabel("posterior mean", fontsize=9)
-    fig.tight_layout()
-    save_figure(fig, path)
-
+    * ``methods`` (M,), ``parameters`` (23,), ``non_identifiable`` (23,) bool;
+    * ``noise_levels`` (D,), ``coverage_levels`` (L,), ``coverage`` (M, D, L, 23): empirical
+      coverage of the central intervals; ``tarp_alpha``, ``tarp_ecp`` (M, D, A): TARP curves;
+    * at ``figure_noise_level`` (the delta of ``run``): ``ranks`` (M, n, 23), SBC ranks among
+      ``n_samples`` samples; ``true_fraction`` (n, 23) and ``posterior_mean_fraction`` (M, n, 23),
+      the true parameters and the sample means as fractions of the prior width (``lo``, ``hi``).
+    """
+    deltas = sorted({d for _, d in curves})
+    delta = float(run["noise_level"])
+    means = [np.stack([(run[m][:, :, j].mean(axis=1) - lo[j]) / (hi[j] - lo[j]) for j in range(len(lo))], axis=1)
+             for m in METHODS]
+    arrays = dict(
+        methods=np.array(METHODS), parameters=np.array(PARAMETER_NAMES), non_identifiable=np.asarray(nonid, bool),
+        noise_levels=np.array(deltas, float), coverage_levels=np.asarray(calibration.COVERAGE_LEVELS, float),
+        coverage=np.array([[curves[(m, d)]["diag"]["coverage"] for d in deltas] for m in METHODS]),
+        tarp_alpha=np.array([[curves[(m, d)]["tarp"]["alpha"] for d in deltas] for m in METHODS]),
+        tarp_ecp=np.array([[curves[(m, d)]["tarp"]["ecp"] for d in deltas] for m in METHODS]),
+        figure_noise_level=delta, n_samples=int(run["inVAErt"].shape[1]),
+        ranks=np.array([curves[(m, delta)]["diag"]["ranks"] for m in METHODS]),
+        true_fraction=(run["theta"] - lo) / (hi - lo), posterior_mean_fraction=np.array(means),
+    )
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)

@@ -22,14 +22,15 @@ from cvsim6 import paper_values
 from cvsim6.data.datasets import load_split
 from cvsim6.model.equations import outside_domain
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
-from cvsim6.reporting.figures import label, save_figure
-from cvsim6.registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES, noise_std
+from cvsim6.registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES
 from cvsim6.model.solver import STATUS_OUTSIDE_DOMAIN, STATUS_REASONS, STATUS_UNPHYSICAL, unphysical
 from cvsim6.reporting.tables import write_table
 
 log = logging.getLogger(__name__)
 
-PRED = "pred_"  # prefix of emulated-output columns (Hr is both a parameter and an output)
+#: Prefix of the emulated-output columns (Hr is both a parameter and an output);
+#: :mod:`cvsim6.reporting.ehr_figures` reads them by the same prefix.
+PRED = "pred_"
 
 
 #: Values of each output that are possible at all, in its registry unit: ``(low, high)``
@@ -138,14 +139,33 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
     not a number, or one impossible in its unit (:func:`unit_problem`).
     ``corrector_steps``: predictor-corrector rounds of :func:`cvsim6.inference.inversion.decode_latent`.
     """
-    warn = on_warning or _report
+    obs = checked_observations(observations, n_latent=n_latent, n_flow_samples=n_flow_samples,
+                               n_reference=n_reference, reference_flow_samples=reference_flow_samples)
+    reference = _Reference.build(flow, reference_outputs, n_reference, reference_flow_samples, seed)
+    settings = dict(n_latent=int(n_latent), n_flow_samples=n_flow_samples, seed=seed, corrector_steps=corrector_steps,
+                    warn=on_warning or _report)
+    it = obs.iterrows()
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=len(obs), unit="patient", desc="invert")
+    rows = [_invert_row(pid, y.to_numpy(), k, flow, encdec, emulator, reference, **settings)
+            for k, (pid, y) in enumerate(it)]
+    out = pd.concat(rows, ignore_index=True)[_COLUMNS]
+    return out.astype({"draw": "Int64", "outside_domain": "boolean", "ood_reference_size": "Int64"})
+
+
+def checked_observations(observations: pd.DataFrame, **counts: int) -> pd.DataFrame:
+    """``observations`` as floats in the 16 registry columns (registry units, NaN = missing).
+
+    Raises ValueError for an unknown column, no rows, a count in ``counts`` (name -> value)
+    below 1, a value that is not a number, or one impossible in its unit (:func:`unit_problem`)."""
     unknown = [c for c in observations.columns if c not in OUTPUT_NAMES]
     if unknown:
         raise ValueError(f"unknown output column(s) {unknown}; expected any of {list(OUTPUT_NAMES)}")
     if len(observations) == 0:
         raise ValueError("no observations to invert (the table has no rows)")
-    for name, value in (("n_latent", n_latent), ("n_flow_samples", n_flow_samples), ("n_reference", n_reference),
-                        ("reference_flow_samples", reference_flow_samples)):
+    for name, value in counts.items():
         if int(value) < 1:
             raise ValueError(f"{name} = {value} must be >= 1")
     obs = observations.reindex(columns=list(OUTPUT_NAMES))
@@ -158,71 +178,91 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
     bad = unit_problems(obs)
     if bad:
         raise ValueError(unit_message(bad, f"observation {obs.index[bad[0][0]]!r}"))
-    if reference_outputs is None:
-        gen = inversion._generator(np.random.SeedSequence([int(seed), 1]).generate_state(1)[0])
-        ref = flow.sample_physical(REFERENCE_FLOW_DRAWS, generator=gen)
-    else:
-        ref = np.asarray(reference_outputs, float)
-    ref = ref[np.isfinite(ref).all(axis=1)]
-    lo, hi = training_range(ref)
-    pick = ref[np.random.default_rng(seed).choice(len(ref), size=min(int(n_reference), len(ref)), replace=False)]
-    ref_scores: dict[bytes, np.ndarray] = {}  # per missing pattern: the same for every observation
+    return obs
 
-    rows = []
-    it = obs.iterrows()
-    if progress:
-        from tqdm import tqdm
 
-        it = tqdm(it, total=len(obs), unit="patient", desc="invert")
-    for k, (pid, y) in enumerate(it):
-        y = y.to_numpy()
-        seen = np.isfinite(y)
-        outside = [n for j, n in enumerate(OUTPUT_NAMES) if seen[j] and not lo[j] <= y[j] <= hi[j]]
-        for n in outside:
-            j = OUTPUT_INDEX[n]
-            unit = OUTPUT_BY_NAME[n].unit
-            warn(pid, f"{n} = {y[j]:g} {unit} is far outside the training range [{lo[j]:.4g}, {hi[j]:.4g}] "
-                      f"{unit}: its inversion extrapolates")
-        if not seen.any():
-            rows.append(_not_inverted(pid, "no output given", outside))
-            warn(pid, "not inverted: no output given")
-            continue
-        best, lp = inversion.complete_missing(flow, y, n_flow_samples, top_k=1, seed=seed + 7919 * k)
-        if not np.isfinite(lp[0]) or not np.isfinite(best).all():
-            why = f"no finite completion under the flow among {n_flow_samples} samples"
-            rows.append(_not_inverted(pid, why, outside))
-            warn(pid, f"not inverted: {why}")
-            continue
-        v = inversion.decode_latent(encdec, best, n_latent, seed=seed + 104729 * k,
-                                    corrector_steps=corrector_steps)[0]
-        yhat = np.asarray(emulator.predict(v))
-        key = (~seen).tobytes()
-        if key not in ref_scores:
-            ref_scores[key] = inversion.reference_scores(flow, pick, ~seen, reference_flow_samples, seed=seed)
-        scores = ref_scores[key]
-        dom = outside_domain(v)
-        draw_status = np.where(dom, STATUS_REASONS[STATUS_OUTSIDE_DOMAIN],
-                               np.where(unphysical(v), STATUS_REASONS[STATUS_UNPHYSICAL], "ok"))
-        if dom.any():
-            warn(pid, f"{int(dom.sum())} of {n_latent} decoded parameter sets are outside the model's domain "
-                      "(see outside_domain)")
-        df = pd.DataFrame(v, columns=list(PARAMETER_NAMES))
-        df.insert(0, "draw", np.arange(n_latent))
-        df.insert(0, "status", "ok")
-        df.insert(0, "id", pid)
-        df["draw_status"] = draw_status
-        df["outside_domain"] = dom
-        for j, name in enumerate(OUTPUT_NAMES):
-            df[PRED + name] = yhat[:, j]
-        for j, name in enumerate(OUTPUT_NAMES):
-            df["completed_" + name] = best[0, j]
-        df["log_density"] = lp[0]
-        df["ood_percentile"] = inversion.ood_percentile(lp[0], scores)
-        df["ood_reference_size"] = int(np.isfinite(scores).sum())
-        df["outside_training"] = ";".join(outside)
-        rows.append(df)
-    out = pd.concat(rows, ignore_index=True)[_COLUMNS]
-    return out.astype({"draw": "Int64", "outside_domain": "boolean", "ood_reference_size": "Int64"})
+class _Reference:
+    """The reference outputs every observation is compared with: the training range
+    (``low``, ``high`` per output, registry units), the rows ranked for the OOD percentile,
+    and their Algorithm-1 scores per missing pattern (computed once, on first use)."""
+
+    def __init__(self, low: np.ndarray, high: np.ndarray, rows: np.ndarray, flow_samples: int, seed: int):
+        self.low, self.high, self.rows = low, high, rows
+        self.flow_samples, self.seed = int(flow_samples), seed
+        self._scores: dict[bytes, np.ndarray] = {}
+
+    @classmethod
+    def build(cls, flow, reference_outputs: np.ndarray | None, n_reference: int, flow_samples: int,
+              seed: int) -> "_Reference":
+        """From ``reference_outputs`` (N, 16), or :data:`REFERENCE_FLOW_DRAWS` flow samples
+        drawn with ``seed`` when None; ``n_reference`` finite rows picked with ``seed``."""
+        if reference_outputs is None:
+            gen = inversion.seeded_torch_generator(np.random.SeedSequence([int(seed), 1]).generate_state(1)[0])
+            ref = flow.sample_physical(REFERENCE_FLOW_DRAWS, generator=gen)
+        else:
+            ref = np.asarray(reference_outputs, float)
+        ref = ref[np.isfinite(ref).all(axis=1)]
+        lo, hi = training_range(ref)
+        pick = np.random.default_rng(seed).choice(len(ref), size=min(int(n_reference), len(ref)), replace=False)
+        return cls(lo, hi, ref[pick], flow_samples, seed)
+
+    def outside(self, y: np.ndarray) -> list[str]:
+        """Names of the observed entries of ``y`` (16,) beyond the training range."""
+        return [n for j, n in enumerate(OUTPUT_NAMES)
+                if np.isfinite(y[j]) and not self.low[j] <= y[j] <= self.high[j]]
+
+    def scores(self, flow, missing: np.ndarray) -> np.ndarray:
+        """Algorithm-1 log-densities of the reference rows with the ``missing`` entries hidden."""
+        key = missing.tobytes()
+        if key not in self._scores:
+            self._scores[key] = inversion.reference_scores(flow, self.rows, missing, self.flow_samples,
+                                                           seed=self.seed)
+        return self._scores[key]
+
+
+def _invert_row(pid, y: np.ndarray, k: int, flow, encdec, emulator, reference: _Reference, n_latent: int,
+                n_flow_samples: int, seed: int, corrector_steps: int,
+                warn: Callable[[object, str], None]) -> pd.DataFrame:
+    """The rows of :func:`invert_observations` for observation ``pid`` (``y`` (16,), the
+    ``k``-th row: its random streams are seeded from ``seed`` and ``k``)."""
+    seen = np.isfinite(y)
+    outside = reference.outside(y)
+    for n in outside:
+        j = OUTPUT_INDEX[n]
+        unit = OUTPUT_BY_NAME[n].unit
+        warn(pid, f"{n} = {y[j]:g} {unit} is far outside the training range "
+                  f"[{reference.low[j]:.4g}, {reference.high[j]:.4g}] {unit}: its inversion extrapolates")
+    if not seen.any():
+        warn(pid, "not inverted: no output given")
+        return _not_inverted(pid, "no output given", outside)
+    best, lp = inversion.complete_missing(flow, y, n_flow_samples, top_k=1, seed=seed + 7919 * k)
+    if not np.isfinite(lp[0]) or not np.isfinite(best).all():
+        why = f"no finite completion under the flow among {n_flow_samples} samples"
+        warn(pid, f"not inverted: {why}")
+        return _not_inverted(pid, why, outside)
+    v = inversion.decode_latent(encdec, best, n_latent, seed=seed + 104729 * k, corrector_steps=corrector_steps)[0]
+    dom = outside_domain(v)
+    if dom.any():
+        warn(pid, f"{int(dom.sum())} of {n_latent} decoded parameter sets are outside the model's domain "
+                  "(see outside_domain)")
+    df = pd.DataFrame(v, columns=list(PARAMETER_NAMES))
+    df.insert(0, "draw", np.arange(n_latent))
+    df.insert(0, "status", "ok")
+    df.insert(0, "id", pid)
+    df["draw_status"] = np.where(dom, STATUS_REASONS[STATUS_OUTSIDE_DOMAIN],
+                                 np.where(unphysical(v), STATUS_REASONS[STATUS_UNPHYSICAL], "ok"))
+    df["outside_domain"] = dom
+    yhat = np.asarray(emulator.predict(v))
+    for j, name in enumerate(OUTPUT_NAMES):
+        df[PRED + name] = yhat[:, j]
+    for j, name in enumerate(OUTPUT_NAMES):
+        df["completed_" + name] = best[0, j]
+    scores = reference.scores(flow, ~seen)
+    df["log_density"] = lp[0]
+    df["ood_percentile"] = inversion.ood_percentile(lp[0], scores)
+    df["ood_reference_size"] = int(np.isfinite(scores).sum())
+    df["outside_training"] = ";".join(outside)
+    return df
 
 
 _COLUMNS = (["id", "status", "draw", *PARAMETER_NAMES, "draw_status", "outside_domain"]
@@ -293,43 +333,6 @@ def ehr_error_table(patients: str, predictions: list[str], csv: str, md: str) ->
     table["Counts"] = [f"{c}/{n}" for c, n in zip(e["count"], e["patients"])]
     write_table(table, csv, md, caption="Reconstruction error e_k per output (N_w latent draws, emulated), "
                                         "EHR patients with more than 10 outputs; paper table 5 beside")
-
-
-def ehr_patient_figure(patients: str, predictions: str, figure: str) -> None:
-    """Per output: each patient's measurement (red star), the predictions (blue dots), +-3 sigma (gray)."""
-    import matplotlib.pyplot as plt
-
-    obs = pd.read_csv(patients, index_col="patient")
-    pred = pd.read_parquet(predictions)
-    d = float(pred["noise_level"].iloc[0])
-    names = [n for n in OUTPUT_NAMES if obs[n].notna().any()]
-    ncols = 2
-    nrows = -(-len(names) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(14, 2.3 * nrows), squeeze=False)
-    s = dict(zip(OUTPUT_NAMES, noise_std()))
-    for ax, name in zip(axes.flat, names):
-        o = obs[name].dropna()
-        x = np.arange(len(o))
-        ax.bar(x, 6 * s[name], bottom=o.to_numpy() - 3 * s[name], width=0.8, color="0.85",
-               label="measurement ± 3σ")
-        for xi, pid in zip(x, o.index):
-            p = pred.loc[pred["id"] == pid, PRED + name].to_numpy()
-            ax.plot(np.full(len(p), xi), p, ".", color="tab:blue", ms=2, alpha=0.5)
-        ax.plot(x, o.to_numpy(), "*", color="tab:red", ms=7, label="EHR measurement")
-        ax.set_xticks(x)
-        ax.set_xticklabels([str(p) for p in o.index], fontsize=6, rotation=90)
-        ax.set_ylabel(label(name), fontsize=9)
-        ax.set_xlim(-1, len(o))
-    for ax in list(axes.flat)[len(names):]:
-        ax.set_visible(False)
-    axes.flat[0].plot([], [], ".", color="tab:blue", ms=8, label="predictions (latent draws)")
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    fig.supxlabel("patient")
-    fig.suptitle(f"Patient-specific predictions, delta = {d:g} (V_l_sys never measured: omitted)", y=0.995)
-    fig.tight_layout(rect=(0, 0, 1, 0.975))
-    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.985), ncols=3, fontsize=9,
-               frameon=False)
-    save_figure(fig, figure)
 
 
 def ood_table(predictions: str, csv: str, md: str) -> None:

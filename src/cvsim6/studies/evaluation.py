@@ -1,15 +1,17 @@
-"""Evaluation of trained networks: error statistics and the tables built on them."""
+"""Evaluation of trained networks: error statistics and the tables built on them, and the
+data behind the evaluation figures (drawn by :mod:`cvsim6.reporting.evaluation_figures`)."""
 from __future__ import annotations
 
+import json
 import logging
 
 import numpy as np
 import pandas as pd
+import torch
 
 from cvsim6.data import datasets
 from cvsim6 import paper_values
 from cvsim6.nets import load_model
-from cvsim6.reporting.figures import label, save_figure
 from cvsim6.registry import OUTPUT_NAMES, OUTPUTS
 from cvsim6.reporting.tables import write_table
 
@@ -86,13 +88,11 @@ def max_of_random_subsets(errors: np.ndarray, subset: int, resamples: int, seed:
     return np.array([e[rng.choice(e.size, k, replace=False)].max() for _ in range(int(resamples))])
 
 
-def emulator_l2_histogram(model: str, validation: str, figure: str, summary: str, study: str = "ehr") -> None:
-    """Histogram of the emulator's relative l2 error on the validation split (the paper's
-    figure for the EHR emulator, max 0.984%; no paper value for the structural study)."""
-    import json
-
-    import matplotlib.pyplot as plt
-
+def emulator_l2_errors(model: str, validation: str, errors: str, summary: str, study: str = "ehr") -> None:
+    """The emulator's relative l2 error on each validation set (``errors`` CSV, column
+    ``rel_l2_error``, fraction, in the split's row order) and its max and mean beside the
+    paper's max (``summary`` JSON; the paper's figure for the EHR emulator, max 0.984%; no
+    paper value for the structural study)."""
     v, y = datasets.load_split(validation)
     err = relative_l2_errors(y, load_model(model).predict(v))
     paper = paper_values.EHR_EMULATOR_MAX_REL_L2 if study == "ehr" else None
@@ -100,36 +100,11 @@ def emulator_l2_histogram(model: str, validation: str, figure: str, summary: str
             "paper_max": paper}
     with open(summary, "w") as fh:
         json.dump(info, fh, indent=2)
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    ax.hist(100 * err, bins=60, color="#3b75af")
-    ax.set_xlabel("relative l2 error of the emulator (%)")
-    ax.set_ylabel("validation sets")
-    beside = f" (paper: {100 * paper:.3f}%)" if paper is not None else ""
-    ax.set_title(f"{study} emulator, {len(err):,} validation sets: max {100 * err.max():.3f}%{beside}, "
-                 f"mean {100 * err.mean():.3f}%", fontsize=10)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, figure)
+    pd.DataFrame({"rel_l2_error": err}).to_csv(errors, index=False)
 
 
-def flow_marginals(flow: str, validation: str, figure: str, n_samples: int, seed: int) -> None:
-    """The 16 output marginals of NN_f samples (red) against the data (blue) (appendix C)."""
-    import matplotlib.pyplot as plt
-    import torch
-
-    _, y = datasets.load_split(validation)
+def flow_samples(flow: str, samples: str, n_samples: int, seed: int) -> None:
+    """``n_samples`` outputs drawn from NN_f (seeded), physical units, one column per output
+    (Parquet with units), for the marginals figure (appendix C)."""
     s = load_model(flow).sample_physical(n_samples, generator=torch.Generator().manual_seed(seed))
-    fig, axes = plt.subplots(2, 8, figsize=(20, 5))
-    for j, (ax, name) in enumerate(zip(axes.flat, OUTPUT_NAMES)):
-        lo, hi = np.percentile(y[:, j], [0.1, 99.9])
-        pad = 0.1 * (hi - lo) if hi > lo else 1.0
-        bins = np.linspace(lo - pad, hi + pad, 50)
-        ax.hist(y[:, j], bins=bins, density=True, color="tab:blue", alpha=0.5, label="data")
-        ax.hist(s[:, j], bins=bins, density=True, histtype="step", color="tab:red", lw=1.5, label="NN_f")
-        ax.set_xlabel(label(name), fontsize=8)
-        ax.set_yticks([])
-        ax.tick_params(labelsize=7)
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"Output marginals: {len(y):,} validation outputs (blue) vs {n_samples:,} NN_f samples (red)")
-    fig.tight_layout()
-    save_figure(fig, figure)
+    datasets.write_dataset(pd.DataFrame(np.asarray(s, float), columns=list(OUTPUT_NAMES)), samples)

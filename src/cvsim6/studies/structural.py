@@ -1,7 +1,8 @@
 """Structural identifiability study (paper section 3.3, appendix C), as workflow steps.
 
 All parameter sets decoded by NN_d are checked through the *simulator* (batch path),
-not the emulator. Units: registry units throughout.
+not the emulator. Units: registry units throughout. These steps write data only (tables,
+JSON, CSV); :mod:`cvsim6.reporting.structural_figures` draws the figures from those files.
 """
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ from cvsim6.data import priors
 from cvsim6.model import solver
 from cvsim6.model.equations import outside_domain
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
-from cvsim6.reporting.figures import save_figure
-from cvsim6.registry import OUTPUT_INDEX, OUTPUT_NAMES, PARAMETER_NAMES
+from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES
 from cvsim6.reporting.tables import write_table
 
 log = logging.getLogger(__name__)
+
 
 def _simulate(v: np.ndarray, simulator: dict) -> tuple[np.ndarray, np.ndarray]:
     """Decoded parameter sets through the batch simulator; sets outside the model's domain
@@ -103,13 +104,18 @@ def sample_manifold(encoder_decoder: str, observation: str, samples: str, n_samp
     datasets.write_dataset(pd.DataFrame(v, columns=list(PARAMETER_NAMES)), samples)
 
 
-def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulator: dict, colors,
-                       observed: np.ndarray | None = None) -> None:
-    """P_a, P_r, P_pa, V_l over the last cycle of each parameter set, y* targets as lines."""
-    ax_list = list(ax_list)  # e.g. axes.flat: an iterator that one pass would exhaust
-    quantities = (("P_a", 1, "P_a_sys", "P_a_dia"), ("P_r", 3, "P_r_sys", "P_r_dia"),
-                  ("P_pa", 4, "P_pa_sys", "P_pa_dia"), ("V_l", 0, "V_l_sys", "V_l_dia"))
-    for p, c in zip(params, colors):
+#: The traced quantities of the trajectory figures: column -> (solver array, compartment index);
+#: pressures in mmHg (``P``), the left-ventricular volume in mL (``V``).
+TRACED = {"P_a": ("P", 1), "P_r": ("P", 3), "P_pa": ("P", 4), "V_l": ("V", 0)}
+
+
+def last_cycle_traces(params: np.ndarray, simulator: dict) -> pd.DataFrame:
+    """P_a, P_r, P_pa (mmHg) and V_l (mL) over the last cycle of each parameter set (N, 23),
+    simulated one by one (batch path), against ``t_over_T`` (time since the cycle's start / T,
+    T = 60 / Hr s). Column ``set`` is the row of ``params``; sets outside the model's domain
+    are left out."""
+    frames = []
+    for i, p in enumerate(np.asarray(params, float)):
         if outside_domain(p)[0]:
             continue
         traj, _, _ = solver.simulate_trajectory(p, steps_per_cycle=simulator["steps_per_cycle"],
@@ -117,19 +123,13 @@ def _trajectory_panels(ax_list, params: np.ndarray, y_star: np.ndarray, simulato
                                                 window_cycles=simulator["window_cycles"])
         T = 60.0 / p[0]
         m = traj.t >= traj.t[-1] - T
-        t = (traj.t[m] - traj.t[m][0]) / T
-        for ax, (name, k, hi, lo) in zip(ax_list, quantities):
-            series = traj.V[m, k] if name == "V_l" else traj.P[m, k]
-            ax.plot(t, series, color=c, lw=0.8, alpha=0.8)
-    for ax, (name, k, hi, lo) in zip(ax_list, quantities):
-        for out in (hi, lo):
-            j = OUTPUT_INDEX[out]
-            if observed is None or observed[j]:
-                ax.axhline(y_star[j], color="k", ls="--", lw=1)
-        unit = "mL" if name == "V_l" else "mmHg"
-        ax.set_ylabel(f"{name} ({unit})")
-        ax.set_xlabel("t / T (last cycle)")
-        ax.grid(alpha=0.3)
+        columns = {"set": i, "t_over_T": (traj.t[m] - traj.t[m][0]) / T}
+        for name, (array, k) in TRACED.items():
+            columns[name] = getattr(traj, array)[m, k]
+        frames.append(pd.DataFrame(columns))
+    if not frames:
+        return pd.DataFrame(columns=["set", "t_over_T", *TRACED])
+    return pd.concat(frames, ignore_index=True)
 
 
 def reconstruction_error_sources(y_star: np.ndarray, y_sim: np.ndarray, y_emulated: np.ndarray) -> dict[str, float]:
@@ -149,11 +149,25 @@ def reconstruction_error_sources(y_star: np.ndarray, y_sim: np.ndarray, y_emulat
             "median_rel_l2_error_emulator": float(np.median(emulator))}
 
 
-def manifold_reconstruction(samples: str, observation: str, csv: str, summary: str, md: str, figure: str, simulator: dict,
-                            n_reconstruct: int, n_traces: int, emulator: str | None = None, n_spread: int = 0,
-                            spread_resamples: int = 2000, seed: int = 0) -> None:
+def _max_spread(y_star: np.ndarray, yhat: np.ndarray, status: np.ndarray, subset: int, resamples: int,
+                seed: int) -> dict:
+    """How the max relative l2 error over ``subset`` draws depends on the draws: its 10/50/90%
+    quantiles over ``resamples`` random ``subset``-subsets of the simulated sets (fractions)."""
+    ok = status == 0
+    l2 = evaluation.relative_l2_errors(np.broadcast_to(y_star, yhat[ok].shape), yhat[ok])
+    maxes = evaluation.max_of_random_subsets(l2, subset, resamples, seed)
+    q10, q50, q90 = (float(x) for x in np.percentile(maxes, [10, 50, 90]))
+    return {"n_simulated": int(len(status)), **_flag_counts(status), "subset": int(subset),
+            "resamples": int(resamples), "q10": q10, "q50": q50, "q90": q90,
+            "median_rel_l2_error": float(np.median(l2))}
+
+
+def manifold_reconstruction(samples: str, observation: str, csv: str, summary: str, md: str, traces: str,
+                            simulator: dict, n_reconstruct: int, n_traces: int, emulator: str | None = None,
+                            n_spread: int = 0, spread_resamples: int = 2000, seed: int = 0) -> None:
     """The first ``n_reconstruct`` manifold samples through the simulator: max relative error
-    against y* (paper: ~0.139%) and the four-panel trajectory figure (``n_traces`` traces).
+    against y* (paper: ~0.139%), and the last-cycle ``traces`` (CSV, :func:`last_cycle_traces`)
+    of the first ``n_traces`` of them for the trajectory figure.
 
     With ``emulator`` (the study's NN_e) the summary also splits the error into the decoder's
     and the emulator's share (:func:`reconstruction_error_sources`). With ``n_spread`` >
@@ -164,8 +178,6 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, summary: s
     of them (:func:`cvsim6.studies.evaluation.max_of_random_subsets`, seeded by ``seed``), beside their
     median error.
     """
-    import matplotlib.pyplot as plt
-
     v_all = datasets.read_dataset(samples)[list(PARAMETER_NAMES)].to_numpy()
     v = v_all[:n_reconstruct]
     y_star = _y_star(observation)
@@ -174,123 +186,74 @@ def manifold_reconstruction(samples: str, observation: str, csv: str, summary: s
     yhat, st = yhat_all[:len(v)], st_all[:len(v)]
     if not (st == 0).any():
         raise ValueError(f"{samples}: none of the {len(v)} decoded sets simulated ({_flag_words(st)})")
-    if spread:
-        ok_all = st_all == 0
-        l2_all = evaluation.relative_l2_errors(np.broadcast_to(y_star, yhat_all[ok_all].shape), yhat_all[ok_all])
-        maxes = evaluation.max_of_random_subsets(l2_all, len(v), spread_resamples, seed)
-        q10, q50, q90 = (float(x) for x in np.percentile(maxes, [10, 50, 90]))
-        resampled = {"n_simulated": int(len(st_all)), **_flag_counts(st_all), "subset": int(len(v)),
-                     "resamples": int(spread_resamples), "q10": q10, "q50": q50, "q90": q90,
-                     "median_rel_l2_error": float(np.median(l2_all))}
     ok = st == 0
     rel = np.abs(yhat[ok] - y_star) / np.abs(y_star)
     worst = rel.max(axis=0)
     l2 = evaluation.relative_l2_errors(np.broadcast_to(y_star, yhat[ok].shape), yhat[ok])
     df = pd.DataFrame({"Output": list(OUTPUT_NAMES), "max relative error": worst})
     info = {"n": int(len(v)), **_flag_counts(st), "max_rel_l2_error": float(l2.max()),
-               "median_rel_l2_error": float(np.median(l2)),
-               "paper_max_rel_l2_error": paper_values.STRUCTURAL_HEADLINES["max_rel_error_manifold"],
-               "max_rel_error_per_output": float(worst.max()), "worst_output": OUTPUT_NAMES[int(np.argmax(worst))]}
+            "median_rel_l2_error": float(np.median(l2)),
+            "paper_max_rel_l2_error": paper_values.STRUCTURAL_HEADLINES["max_rel_error_manifold"],
+            "max_rel_error_per_output": float(worst.max()), "worst_output": OUTPUT_NAMES[int(np.argmax(worst))]}
     sources = ""
     if spread:
-        info["max_rel_l2_error_resampled"] = resampled
+        r = info["max_rel_l2_error_resampled"] = _max_spread(y_star, yhat_all, st_all, len(v), spread_resamples, seed)
         sources = (f"; the max over {len(v)} draws, for {spread_resamples:,} random sets of {len(v)} of the first "
-                   f"{resampled['n_simulated']:,} draws: 10/50/90% quantiles {q10:.3%} / {q50:.3%} / {q90:.3%} "
-                   f"(their median error {resampled['median_rel_l2_error']:.3%})")
+                   f"{r['n_simulated']:,} draws: 10/50/90% quantiles {r['q10']:.3%} / {r['q50']:.3%} / "
+                   f"{r['q90']:.3%} (their median error {r['median_rel_l2_error']:.3%})")
     if emulator is not None:
         info.update(reconstruction_error_sources(y_star, yhat[ok], load_model(emulator).predict(v[ok])))
         sources += (f"; of which the decoder, ||NN_e(v) - y*|| / ||y*||: max {info['max_rel_l2_error_decoder']:.3%}, "
-                   f"median {info['median_rel_l2_error_decoder']:.3%}, and the emulator at these sets, "
-                   f"||NN_e(v) - f(v)|| / ||f(v)||: max {info['max_rel_l2_error_emulator']:.3%}")
+                    f"median {info['median_rel_l2_error_decoder']:.3%}, and the emulator at these sets, "
+                    f"||NN_e(v) - f(v)|| / ||f(v)||: max {info['max_rel_l2_error_emulator']:.3%}")
     write_table(df, csv, md, caption=f"{int(ok.sum())} of {len(v)} decoded parameter sets for y* simulated "
                                      f"({_flag_words(st)}): largest relative l2 error ||f(v) - y*|| / ||y*|| "
                                      f"{info['max_rel_l2_error']:.3%}, median {info['median_rel_l2_error']:.3%} "
                                      f"(the paper's measure: about 0.139%){sources}; below, the largest relative "
                                      "error of each output")
     Path(summary).write_text(json.dumps(info, indent=2) + "\n")
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
-    cmap = plt.get_cmap("viridis")
-    _trajectory_panels(axes.flat, v[:n_traces], y_star, simulator,
-                       [cmap(i / max(1, n_traces - 1)) for i in range(n_traces)])
-    fig.suptitle(f"The first {n_traces} of {len(v)} decoded parameter sets for y*, those inside the "
-                 "model's domain (dashed: targets in y*)")
-    fig.tight_layout()
-    save_figure(fig, figure)
+    last_cycle_traces(v[:n_traces], simulator).to_csv(traces, index=False)
 
 
-def parallel_coordinates(samples: str, figure: str, prior: dict, n_lines: int) -> None:
-    """Parallel-coordinate plot of the manifold, two rows, limits 5% beyond the prior bounds."""
-    import matplotlib.pyplot as plt
-
+def parallel_coordinates_data(samples: str, lines: str, summary: str, prior: dict, n_lines: int) -> None:
+    """What the parallel-coordinate figure draws: the first ``n_lines`` manifold samples inside
+    the model's domain (``lines`` CSV, one column per parameter, registry units) and, in
+    ``summary`` (JSON), each axis' limits (the prior bounds widened by 5% of their width on both
+    sides, registry units) and how many of all the samples lie outside the model's domain."""
     v, n_out = _manifold_samples(samples)
     v = v[:n_lines]
     lo, hi = priors.prior_bounds(prior)
     pad = 0.05 * (hi - lo)
     lo, hi = lo - pad, hi + pad
-    u = (v - lo) / (hi - lo)
-    rows = [list(range(0, 12)), list(range(11, 23))]  # R_l_in (index 11) in both rows
-    fig, axes = plt.subplots(2, 1, figsize=(14, 7))
-    for ax, idx in zip(axes, rows):
-        x = np.arange(len(idx))
-        for line in u[:, idx]:
-            ax.plot(x, line, color="tab:blue", alpha=0.25, lw=0.8)
-        for xi, j in zip(x, idx):
-            ax.axvline(xi, color="k", lw=0.6)
-            ax.text(xi, 1.02, f"{hi[j]:.3g}", ha="center", fontsize=7)
-            ax.text(xi, -0.06, f"{lo[j]:.3g}", ha="center", fontsize=7, va="top")
-        ax.set_xticks(x)
-        ax.set_xticklabels([PARAMETER_NAMES[j] for j in idx], fontsize=9)
-        ax.set_yticks([])
-        ax.set_ylim(-0.12, 1.08)
-        ax.set_xlim(-0.3, len(idx) - 0.7)
-        for side in ("top", "right", "left"):
-            ax.spines[side].set_visible(False)
-    fig.suptitle(f"Non-identifiable manifold of y*: {len(v)} decoded parameter sets "
-                 f"(axes span the prior bounds +5%; units as the input table; {n_out} sets outside "
-                 "the model's domain left out)")
-    fig.tight_layout()
-    save_figure(fig, figure)
+    pd.DataFrame(v, columns=list(PARAMETER_NAMES)).to_csv(lines, index=False)
+    Path(summary).write_text(json.dumps(
+        {"lines": int(len(v)), "outside_domain": n_out,
+         "axis_limits": {name: [float(a), float(b)] for name, a, b in zip(PARAMETER_NAMES, lo, hi)}},
+        indent=2) + "\n")
 
 
-def manifold_svd_figure(samples: str, figure: str, csv: str, summary: str, level: float = 0.99) -> None:
-    """Singular values and cumulative energy of the manifold samples; modes reaching ``level``."""
-    import matplotlib.pyplot as plt
-
+def manifold_svd_modes(samples: str, csv: str, summary: str, level: float = 0.99) -> None:
+    """Singular values and cumulative energy of the manifold samples (``csv``), and the modes
+    reaching ``level`` of the energy beside the paper's (``summary`` JSON)."""
     v, n_out = _manifold_samples(samples)
     s = identifiability.manifold_svd(v)
     ce = identifiability.cumulative_energy(s)
     n, e = identifiability.modes_for_energy(s, level)
-    pd.DataFrame({"mode": np.arange(1, len(s) + 1), "singular_value": s, "cumulative_energy": ce}).to_csv(csv, index=False)
+    pd.DataFrame({"mode": np.arange(1, len(s) + 1), "singular_value": s,
+                  "cumulative_energy": ce}).to_csv(csv, index=False)
+    paper = paper_values.STRUCTURAL_HEADLINES
     Path(summary).write_text(json.dumps(
         {"n_samples": int(len(v)), "outside_domain": n_out, "level": level, "modes": n, "energy": e,
-         "paper_modes": paper_values.STRUCTURAL_HEADLINES["modes_99"], "paper_energy": paper_values.STRUCTURAL_HEADLINES["energy_at_modes"]},
-        indent=2) + "\n")
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    k = np.arange(1, len(s) + 1)
-    a.semilogy(k, s, "o-")
-    a.set_xlabel("mode")
-    a.set_ylabel("singular value (standardized samples)")
-    b.plot(k, ce, "o-")
-    b.axhline(level, color="gray", ls="--")
-    b.axvline(n, color="tab:red", ls=":")
-    b.annotate(f"{n} modes: {e:.2%}", (n, e), textcoords="offset points", xytext=(8, -18))
-    b.set_xlabel("modes kept")
-    b.set_ylabel("cumulative energy")
-    for ax in (a, b):
-        ax.grid(alpha=0.3)
-    fig.suptitle(f"SVD of {len(v):,} standardized parameter sets on the manifold of y* "
-                 "(paper: 12 modes, 99.28%)")
-    fig.tight_layout()
-    save_figure(fig, figure)
+         "paper_modes": paper["modes_99"], "paper_energy": paper["energy_at_modes"]}, indent=2) + "\n")
 
 
-def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, summary: str, md: str, figure: str,
+def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, summary: str, md: str, traces: str,
                  simulator: dict, missing: list, n_flow_samples: int, top_k: int, n_latent: int, seed: int,
                  corrector_steps: int = DEFAULT_CORRECTOR_STEPS) -> None:
     """Algorithm 1 on y* without ``missing``: top-k completions x n_latent draws, simulated;
-    largest relative l2 error on the observed entries (paper: ~0.408%) and the trajectory figure."""
-    import matplotlib.pyplot as plt
-
+    largest relative l2 error on the observed entries (paper: ~0.408%), and the last-cycle
+    ``traces`` (CSV) of every decoded set: :func:`last_cycle_traces` with ``completion`` (its
+    rank, from 1) and ``set`` (the latent draw)."""
     y_star = _y_star(observation)
     y_obs = y_star.copy()
     miss = np.array([n in missing for n in OUTPUT_NAMES])
@@ -313,24 +276,17 @@ def missing_data(flow: str, encoder_decoder: str, observation: str, csv: str, su
     Path(summary).write_text(json.dumps(
         {"max_rel_l2_error_observed": float(l2.max()), **_flag_counts(st),
          "paper": paper_values.STRUCTURAL_HEADLINES["max_rel_error_missing"]}, indent=2) + "\n")
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
-    colors = plt.get_cmap("tab10").colors
-    for g in range(top_k):
-        _trajectory_panels(axes.flat, v[g], y_star, simulator, [colors[g]] * n_latent, observed=~miss)
-    for g in range(top_k):
-        axes.flat[0].plot([], [], color=colors[g], label=f"completion {g + 1}")
-    axes.flat[0].legend(fontsize=8)
-    fig.suptitle(f"Missing data: {top_k} completions x {n_latent} latent draws (dashed: observed targets)")
-    fig.tight_layout()
-    save_figure(fig, figure)
+    per_completion = [last_cycle_traces(v[g], simulator) for g in range(top_k)]
+    for g, frame in enumerate(per_completion):
+        frame.insert(0, "completion", g + 1)
+    pd.concat(per_completion, ignore_index=True).to_csv(traces, index=False)
 
 
-def jacobian_check(samples: str, csv: str, summary: str, md: str, figure: str, prior: dict, simulator: dict,
+def jacobian_check(samples: str, csv: str, summary: str, md: str, spectra: str, prior: dict, simulator: dict,
                    n_points: int, rel_step: float, rank_rtol: float) -> None:
-    """Local identifiability at manifold samples: scaled Jacobian spectra, ranks, and per
-    parameter the spread over the manifold (fraction of the prior width) and null-space share."""
-    import matplotlib.pyplot as plt
-
+    """Local identifiability at manifold samples: scaled Jacobian spectra (``spectra`` CSV, one
+    row per point, columns sigma_1 >= sigma_2 >= ..., dimensionless), ranks, and per parameter
+    the spread over the manifold (fraction of the prior width) and null-space share."""
     v_all, _ = _manifold_samples(samples)
     v = v_all[:n_points]
     lo, hi = priors.prior_bounds(prior)
@@ -352,14 +308,4 @@ def jacobian_check(samples: str, csv: str, summary: str, md: str, figure: str, p
     Path(summary).write_text(json.dumps(
         {"points": int(ok.sum()), "rank_counts": rank_counts, "median_rank": float(np.median(ranks)),
          "local_manifold_dimension": 23 - int(np.median(ranks))}, indent=2) + "\n")
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for s in sv:
-        ax.semilogy(np.arange(1, len(s) + 1), s / s[0], color="tab:blue", alpha=0.3)
-    ax.axhline(rank_rtol, color="tab:red", ls="--", label=f"rank threshold {rank_rtol:g}")
-    ax.set_xlabel("singular value index")
-    ax.set_ylabel("sigma_k / sigma_1 (scaled Jacobian)")
-    ax.set_title(f"Jacobian spectra at {ok.sum()} points of the manifold of y*")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, figure)
+    pd.DataFrame(sv, columns=[f"sigma_{k}" for k in range(1, sv.shape[1] + 1)]).to_csv(spectra, index=False)

@@ -9,7 +9,7 @@ import pytest
 from cvsim6.studies import ehr as ehr_study
 from cvsim6 import registry
 
-from conftest import LOCAL_EHR_CSV as REAL, needs_local_ehr  # the local copy of the EHR data
+from conftest import LOCAL_EHR_CSV as REAL, needs_local_ehr, toy_ehr_networks  # REAL: the local copy of the EHR data
 
 
 def test_error_per_output_is_the_papers_criterion():
@@ -31,32 +31,11 @@ def test_error_per_output_is_the_papers_criterion():
 # ----------------------------------------------------------------------------- bad input, OOD
 @pytest.fixture(scope="module")
 def gaussian_twin():
-    """Small networks on 440 simulated EHR-prior sets; the flow's couplings are the identity,
-    so its density is the Gaussian of the standardized outputs (fitted on the first 400)."""
-    import torch
-
-    from conftest import prior_sample
-    from cvsim6 import nets as networks
-    from cvsim6.model import solver
-
-    torch.manual_seed(0)
-    v = prior_sample("ehr", 440, 6)
-    y, st = solver.simulate_batch(v)
-    assert (st == 0).all()
-    emu = networks.Emulator(16, 3)
-    emu.x_scaler.fit(v)
-    emu.y_scaler.fit(y)
-    flow = networks.RealNVP(hidden=8, blocks=4, layers_per_block=3)
-    with torch.no_grad():
-        for layer in flow.layers:
-            for net in (layer.s, layer.t):
-                net[-1].weight.zero_()
-                net[-1].bias.zero_()
-    flow.y_scaler.fit(y[:400])
-    ed = networks.EncoderDecoder(encoder_hidden=8, encoder_layers=2, decoder_hidden=8, decoder_layers=2)
-    ed.x_scaler.fit(v)
-    ed.y_scaler.fit(y)
-    return flow.eval(), ed, emu, y
+    """Small networks on 440 simulated EHR-prior sets (conftest.toy_ehr_networks); the flow's
+    couplings are the identity, so its density is the Gaussian of the standardized outputs
+    (fitted on the first 400). Returns ``(flow, encoder_decoder, emulator, outputs (440, 16))``."""
+    flow, ed, emu, _, y = toy_ehr_networks(440, 6, flow_rows=400)
+    return flow, ed, emu, y
 
 
 def test_obvious_outlier_ranks_below_typical_simulated_patients(gaussian_twin):

@@ -28,7 +28,7 @@ from conftest import SNAKEMAKE, copy_workflow, snakemake
 pytestmark = pytest.mark.slow
 
 MODEL = "results/models/structural/emulator.pt"
-CHECKPOINT = MODEL + ".ckpt"  # cvsim6.training.core's default: the model path + ".ckpt"
+CHECKPOINT = MODEL + ".ckpt"  # cvsim6.training.loop's default: the model path + ".ckpt"
 LOSSES = "results/training/structural/emulator_losses.csv"  # one row per epoch, appended
 EPOCHS = 300
 KILL_AFTER = 10

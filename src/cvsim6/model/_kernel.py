@@ -56,6 +56,21 @@ def activation(tc, T, Ts):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _eliminate(d, c, f, r, D_next, r_next, w, d5, r5):
+    """One elimination step of :func:`_cyclic_solve`, pivot row k (diagonal ``d``, super-diagonal
+    ``-c``, last-column fill ``f``, right-hand side ``r``): clear column k from row k+1
+    (diagonal ``D_next`` before elimination, right-hand side ``r_next``) and from row 5 (entry
+    ``w``; its diagonal ``d5`` and right-hand side ``r5`` so far). Returns the pivot's inverse,
+    row k+1's new diagonal, fill and right-hand side, row 5's multiplier ``m5`` (its next entry
+    is ``m5 * c_{k+1}``, less the ``c_4`` coupling at the end) and its new ``d5``, ``r5``.
+    Inlined, like its caller: the arithmetic is that of the written-out elimination."""
+    i = 1.0 / d
+    m = -c * i
+    m5 = w * i
+    return i, D_next + m * c, -m * f, r_next - m * r, m5, d5 - m5 * f, r5 - m5 * r
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cyclic_solve(C0, C3, c0, c1, c2, c3, c4, c5, D1, D2, D4, D5, r0, r1, r2, r3, r4, r5):
     """Solve one implicit stage of :func:`_step_range`: the symmetric cyclic tridiagonal 6x6
     system in ``x`` (mmHg), diagonal ``C_i + c_{i-1} + c_i`` (``D1, D2, D4, D5`` precomputed, the
@@ -73,32 +88,11 @@ def _cyclic_solve(C0, C3, c0, c1, c2, c3, c4, c5, D1, D2, D4, D5, r0, r1, r2, r3
     d5 = D5 + m5 * c5
     r5 = r5 - m5 * r0
     w = m5 * c0
-    i1 = 1.0 / d1
-    m = -c1 * i1
-    d2 = D2 + m * c1
-    f2 = -m * f1
-    r2 = r2 - m * r1
-    m5 = w * i1
-    d5 -= m5 * f1
-    r5 -= m5 * r1
+    i1, d2, f2, r2, m5, d5, r5 = _eliminate(d1, c1, f1, r1, D2, r2, w, d5, r5)
     w = m5 * c1
-    i2 = 1.0 / d2
-    m = -c2 * i2
-    d3 = C3 + c2 + c3 + m * c2
-    f3 = -m * f2
-    r3 = r3 - m * r2
-    m5 = w * i2
-    d5 -= m5 * f2
-    r5 -= m5 * r2
+    i2, d3, f3, r3, m5, d5, r5 = _eliminate(d2, c2, f2, r2, C3 + c2 + c3, r3, w, d5, r5)
     w = m5 * c2
-    i3 = 1.0 / d3
-    m = -c3 * i3
-    d4 = D4 + m * c3
-    f4 = -m * f3
-    r4 = r4 - m * r3
-    m5 = w * i3
-    d5 -= m5 * f3
-    r5 -= m5 * r3
+    i3, d4, f4, r4, m5, d5, r5 = _eliminate(d3, c3, f3, r3, D4, r4, w, d5, r5)
     w = -c4 + m5 * c3
     i4 = 1.0 / d4
     e45 = -c4 + f4  # row 4: super-diagonal and fill share column 5

@@ -7,8 +7,11 @@ for machines) and as Markdown (rounded like the paper, for people).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from numbers import Integral, Real
+from operator import attrgetter
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -72,33 +75,31 @@ def write_table(df: pd.DataFrame, csv: str | Path, md: str | Path, caption: str 
     Path(md).write_text(to_markdown(df, caption), encoding="utf-8")
 
 
+def _registry_table(entries: Sequence, columns: Mapping[str, Callable[[Any], object]]) -> pd.DataFrame:
+    """One row per registry entry (parameter or output): ``Num.`` (1-based), ``Name``,
+    ``Description``, then one column per ``{header: value of an entry}`` of ``columns``."""
+    columns = {"Name": attrgetter("name"), "Description": attrgetter("description"), **columns}
+    return pd.DataFrame({"Num.": range(1, len(entries) + 1),
+                         **{header: [value(e) for e in entries] for header, value in columns.items()}})
+
+
 def input_parameter_table() -> pd.DataFrame:
     """Table 1 of the paper: the 23 inputs with defaults in clinical and CGS units."""
-    return pd.DataFrame(
-        {
-            "Num.": range(1, registry.N_PARAMETERS + 1),
-            "Name": [p.name for p in registry.PARAMETERS],
-            "Description": [p.description for p in registry.PARAMETERS],
-            "Default (clinical)": [p.default for p in registry.PARAMETERS],
-            "Unit (clinical)": [p.unit for p in registry.PARAMETERS],
-            "Default (CGS)": [p.default * p.cgs_factor for p in registry.PARAMETERS],
-            "Unit (CGS)": [p.cgs_unit for p in registry.PARAMETERS],
-        }
-    )
+    return _registry_table(registry.PARAMETERS, {
+        "Default (clinical)": attrgetter("default"),
+        "Unit (clinical)": attrgetter("unit"),
+        "Default (CGS)": lambda p: p.default * p.cgs_factor,
+        "Unit (CGS)": attrgetter("cgs_unit"),
+    })
 
 
 def output_parameter_table() -> pd.DataFrame:
     """Table 2 of the paper: the 16 outputs, how they are computed, and their noise std."""
-    return pd.DataFrame(
-        {
-            "Num.": range(1, registry.N_OUTPUTS + 1),
-            "Name": [o.name for o in registry.OUTPUTS],
-            "Description": [o.description for o in registry.OUTPUTS],
-            "Calculation": [o.calculation for o in registry.OUTPUTS],
-            "Unit": [o.unit for o in registry.OUTPUTS],
-            "Noise std": [o.noise_std for o in registry.OUTPUTS],
-        }
-    )
+    return _registry_table(registry.OUTPUTS, {
+        "Calculation": attrgetter("calculation"),
+        "Unit": attrgetter("unit"),
+        "Noise std": attrgetter("noise_std"),
+    })
 
 
 def write_input_table(csv: str | Path, md: str | Path) -> None:

@@ -36,7 +36,7 @@ MISSING_OUTPUTS = ("P_a_dia", "P_r_dia", "P_pa_dia", "P_w", "V_l_sys", "SVR", "P
 #: l2 error on the observed entries with missing data (fraction).
 STRUCTURAL_HEADLINES = {"max_rel_error_manifold": 0.00139, "modes_99": 12, "energy_at_modes": 0.9928,
                         "max_rel_error_missing": 0.00408}
-#: Section 3.1, figures 3-4: eigenvalues of A(t) (1/s) at the SR extremes, their times (s)
+#: Section 3.1, figures 4-5: eigenvalues of A(t) (1/s) at the SR extremes, their times (s)
 #: and the time constants tau_1, tau_2 (s) the paper quotes.
 STIFFNESS_EXTREMES = {
     "SR max": dict(t=9.444, lambdas=(-520.95, -355.93, -3.75, -0.51, 6.25e-4, 2.91e-5), tau=(0.0019, 0.0028)),

@@ -38,9 +38,9 @@ rule plot_npe_losses:
     output:
         figure=report(
             f"{TRAINING}/ehr/npe_delta{{delta}}_losses.png",
-            category="Calibration",
-            subcategory="NPE training",
             caption="../report/npe_losses.rst",
+            category=REPORT_BEYOND,
+            subcategory="4 NPE baseline training",
         ),
     log:
         f"{LOGS}/plot_npe_losses/delta{{delta}}.log",
@@ -98,7 +98,12 @@ rule calibration_summary:
         invaert_losses=invaert_training_losses,
     output:
         csv=f"{NET_TABLES}/calibration_summary.csv",
-        md=f"{NET_TABLES}/calibration_summary.md",
+        md=report(
+            f"{NET_TABLES}/calibration_summary.md",
+            caption="../report/calibration_summary.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"3 Calibration: inVAErt and NPE{NET_MARK}",
+        ),
         figure_data=f"{CALIBRATION}/figure_data.npz",
     log:
         f"{NET_LOGS}/calibration_summary.log",
@@ -130,18 +135,21 @@ rule calibration_figures:
     output:
         coverage_figure=report(
             f"{CALIBRATION}/coverage.png",
-            category="Calibration",
             caption="../report/calibration_coverage.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"3 Calibration: inVAErt and NPE{NET_MARK}",
         ),
         rank_figure=report(
             f"{CALIBRATION}/rank_ecdf_delta{calibration_figure_delta()}.png",
-            category="Calibration",
             caption="../report/calibration_ranks.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"3 Calibration: inVAErt and NPE{NET_MARK}",
         ),
         recovery_figure=report(
             f"{CALIBRATION}/recovery_delta{calibration_figure_delta()}.png",
-            category="Calibration",
             caption="../report/calibration_recovery.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"3 Calibration: inVAErt and NPE{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/calibration_figures.log",
@@ -219,7 +227,12 @@ rule ehr_error_methods:
         ),
     output:
         csv=f"{NET_TABLES}/ehr_error_methods.csv",
-        md=f"{NET_TABLES}/ehr_error_methods.md",
+        md=report(
+            f"{NET_TABLES}/ehr_error_methods.md",
+            caption="../report/ehr_error_methods.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"3 Calibration: inVAErt and NPE{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/ehr_error_methods.log",
     benchmark:

@@ -28,6 +28,27 @@ NET_BENCHMARKS = (
 #: Networks the downstream rules read: trained into results/models, converted into results/published/models.
 MODELS = f"{NET}/models"
 
+#: Report categories, one per part of the paper. The report lists them sorted by name,
+#: hence the numbers: the scorecard first, then the paper's order, then what goes beyond it.
+REPORT_SCORECARD = "1 Reproduction scorecard"
+REPORT_MODEL = "2 CVSim-6 model (sec. 2.1, 3.2)"
+REPORT_STIFFNESS = "3 Stiffness analysis (sec. 3.1)"
+REPORT_STUDY = {
+    "structural": "4 Structural identifiability (sec. 3.3, app. B-C)",
+    "ehr": "5 EHR inversion (sec. 3.4, app. B)",
+}
+REPORT_BEYOND = "6 Beyond the paper"
+
+
+def report_study(wildcards):
+    """Report category of a result of one study, by its ``study`` wildcard."""
+    return REPORT_STUDY[wildcards.study]
+
+
+#: Appended to the report subcategory of a result of the networks in use when they are
+#: the paper's published networks (networks.source: published).
+NET_MARK = ", published networks" if NETWORK_SOURCE == "published" else ""
+
 _spec = importlib.util.spec_from_file_location(
     "cvsim6_codegraph", f"{PACKAGE_DIR}/workflow/codegraph.py"
 )

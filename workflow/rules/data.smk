@@ -123,14 +123,14 @@ rule data_histograms:
     output:
         outputs_figure=report(
             f"{DATA}/{{study}}/outputs_histograms.png",
-            category="Data",
-            subcategory="{study}",
+            category=report_study,
+            subcategory="1 Data",
             caption="../report/data_outputs_histograms.rst",
         ),
         inputs_figure=report(
             f"{DATA}/{{study}}/inputs_histograms.png",
-            category="Data",
-            subcategory="{study}",
+            category=report_study,
+            subcategory="1 Data",
             caption="../report/data_inputs_histograms.rst",
         ),
     log:

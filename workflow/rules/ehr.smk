@@ -34,7 +34,12 @@ rule ehr_patients:
     output:
         patients=f"{EHR}/patients.csv",
         counts_csv=f"{EHR}/output_counts.csv",
-        counts_md=f"{EHR}/output_counts.md",
+        counts_md=report(
+            f"{EHR}/output_counts.md",
+            caption="../report/ehr_output_counts.rst",
+            category=REPORT_STUDY["ehr"],
+            subcategory="1 Data",
+        ),
     log:
         f"{LOGS}/ehr_patients.log",
     benchmark:
@@ -92,7 +97,12 @@ rule ehr_error_table:
         ),
     output:
         csv=f"{NET_TABLES}/ehr_error_per_output.csv",
-        md=f"{NET_TABLES}/ehr_error_per_output.md",
+        md=report(
+            f"{NET_TABLES}/ehr_error_per_output.md",
+            caption="../report/ehr_error_table.rst",
+            category=REPORT_STUDY["ehr"],
+            subcategory=f"3 Patient inversion{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/ehr_error_table.log",
     benchmark:
@@ -114,7 +124,12 @@ rule ehr_ood_table:
         predictions=f"{NET_EHR}/predictions_delta{{delta}}.parquet",
     output:
         csv=f"{NET_TABLES}/ehr_ood_delta{{delta}}.csv",
-        md=f"{NET_TABLES}/ehr_ood_delta{{delta}}.md",
+        md=report(
+            f"{NET_TABLES}/ehr_ood_delta{{delta}}.md",
+            caption="../report/ehr_ood_table.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"2 EHR out-of-distribution score{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/ehr_ood_table/delta{{delta}}.log",
     benchmark:
@@ -138,8 +153,9 @@ rule ehr_patient_figure:
     output:
         figure=report(
             f"{NET_EHR}/patient_predictions_delta{{delta}}.png",
-            category="EHR study",
             caption="../report/ehr_patient_figure.rst",
+            category=REPORT_STUDY["ehr"],
+            subcategory=f"3 Patient inversion{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/ehr_patient_figure/delta{{delta}}.log",

@@ -6,8 +6,8 @@ rule input_parameter_table:
         csv=f"{TABLES}/input_parameters.csv",
         md=report(
             f"{TABLES}/input_parameters.md",
-            category="Model",
             caption="../report/input_parameters.rst",
+            category=REPORT_MODEL,
         ),
     log:
         f"{LOGS}/input_parameter_table.log",
@@ -30,8 +30,8 @@ rule output_parameter_table:
         csv=f"{TABLES}/output_parameters.csv",
         md=report(
             f"{TABLES}/output_parameters.md",
-            category="Model",
             caption="../report/output_parameters.rst",
+            category=REPORT_MODEL,
         ),
     log:
         f"{LOGS}/output_parameter_table.log",

@@ -9,8 +9,8 @@ rule reproduction_scorecard:
         csv=f"{RESULTS}/report/reproduction.csv",
         md=report(
             f"{RESULTS}/report/reproduction.md",
-            category="Reproduction scorecard",
             caption="../report/reproduction.rst",
+            category=REPORT_SCORECARD,
         ),
     log:
         f"{LOGS}/reproduction_scorecard.log",

@@ -38,7 +38,7 @@ rule stiffness_extremes:
         csv=f"{STIFFNESS}/sr_extremes.csv",
         md=report(
             f"{STIFFNESS}/sr_extremes.md",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_extremes.rst",
         ),
     log:
@@ -65,7 +65,7 @@ rule stiffness_eigenvalue_figure:
     output:
         png=report(
             f"{STIFFNESS}/eigenvalues.png",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_eigenvalues.rst",
         ),
         pdf=f"{STIFFNESS}/eigenvalues.pdf",
@@ -92,14 +92,14 @@ rule stiffness_radar_figure:
     output:
         png=report(
             f"{STIFFNESS}/radar_sr_{{extreme}}.png",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_radar.rst",
         ),
         pdf=f"{STIFFNESS}/radar_sr_{{extreme}}.pdf",
     log:
-        f"{LOGS}/stiffness_radar_figure_{{extreme}}.log",
+        f"{LOGS}/stiffness_radar_figure/{{extreme}}.log",
     benchmark:
-        f"{BENCHMARKS}/stiffness_radar_figure_{{extreme}}.tsv"
+        f"{BENCHMARKS}/stiffness_radar_figure/{{extreme}}.tsv"
     wildcard_constraints:
         extreme="max|min",
     conda:
@@ -122,7 +122,7 @@ rule stiffness_sr_figure:
     output:
         png=report(
             f"{STIFFNESS}/sr_dynamics.png",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_sr_dynamics.rst",
         ),
         pdf=f"{STIFFNESS}/sr_dynamics.pdf",
@@ -148,7 +148,7 @@ rule stiffness_rk4:
         csv=f"{STIFFNESS}/rk4_errors.csv",
         md=report(
             f"{STIFFNESS}/rk4_errors.md",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_rk4_table.rst",
         ),
     log:
@@ -176,7 +176,7 @@ rule stiffness_rk4_figure:
     output:
         png=report(
             f"{STIFFNESS}/rk4.png",
-            category="Stiffness",
+            category=REPORT_STIFFNESS,
             caption="../report/stiffness_rk4.rst",
         ),
         pdf=f"{STIFFNESS}/rk4.pdf",

@@ -15,7 +15,12 @@ rule structural_inversion_table:
     output:
         csv=f"{NET_TABLES}/structural_inversion_errors.csv",
         summary=f"{NET_TABLES}/structural_inversion_errors.json",
-        md=f"{NET_TABLES}/structural_inversion_errors.md",
+        md=report(
+            f"{NET_TABLES}/structural_inversion_errors.md",
+            caption="../report/structural_inversion_table.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/structural_inversion_table.log",
     benchmark:
@@ -40,7 +45,12 @@ rule structural_observation:
         flow=f"{S_MODELS}/flow_delta0.pt",
     output:
         csv=f"{NET_TABLES}/structural_observation.csv",
-        md=f"{NET_TABLES}/structural_observation.md",
+        md=report(
+            f"{NET_TABLES}/structural_observation.md",
+            caption="../report/structural_observation.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/structural_observation.log",
     benchmark:
@@ -93,7 +103,12 @@ rule structural_reconstruction:
     output:
         csv=f"{NET_TABLES}/structural_manifold_reconstruction.csv",
         summary=f"{NET_TABLES}/structural_manifold_reconstruction.json",
-        md=f"{NET_TABLES}/structural_manifold_reconstruction.md",
+        md=report(
+            f"{NET_TABLES}/structural_manifold_reconstruction.md",
+            caption="../report/structural_reconstruction_table.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
+        ),
         traces=f"{STRUCT}/manifold_trajectories.csv",
     log:
         f"{NET_LOGS}/structural_reconstruction.log",
@@ -125,8 +140,9 @@ rule structural_reconstruction_figure:
     output:
         figure=report(
             f"{STRUCT}/manifold_trajectories.png",
-            category="Structural study",
             caption="../report/structural_trajectories.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/structural_reconstruction_figure.log",
@@ -176,8 +192,9 @@ rule structural_parallel_coordinates_figure:
     output:
         figure=report(
             f"{STRUCT}/manifold_parallel_coordinates.png",
-            category="Structural study",
             caption="../report/structural_parallel_coordinates.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/structural_parallel_coordinates_figure.log",
@@ -224,8 +241,9 @@ rule structural_manifold_svd_figure:
     output:
         figure=report(
             f"{STRUCT}/manifold_svd.png",
-            category="Structural study",
             caption="../report/structural_svd.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/structural_manifold_svd_figure.log",
@@ -251,7 +269,12 @@ rule structural_missing_data:
     output:
         csv=f"{NET_TABLES}/structural_missing_data.csv",
         summary=f"{NET_TABLES}/structural_missing_data.json",
-        md=f"{NET_TABLES}/structural_missing_data.md",
+        md=report(
+            f"{NET_TABLES}/structural_missing_data.md",
+            caption="../report/structural_missing_table.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
+        ),
         traces=f"{STRUCT}/missing_data_trajectories.csv",
     log:
         f"{NET_LOGS}/structural_missing_data.log",
@@ -283,8 +306,9 @@ rule structural_missing_data_figure:
     output:
         figure=report(
             f"{STRUCT}/missing_data_trajectories.png",
-            category="Structural study",
             caption="../report/structural_missing.rst",
+            category=REPORT_STUDY["structural"],
+            subcategory=f"3 Inversion and non-identifiable manifold{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/structural_missing_data_figure.log",
@@ -311,7 +335,12 @@ rule structural_jacobian:
     output:
         csv=f"{NET_TABLES}/structural_local_identifiability.csv",
         summary=f"{NET_TABLES}/structural_local_identifiability.json",
-        md=f"{NET_TABLES}/structural_local_identifiability.md",
+        md=report(
+            f"{NET_TABLES}/structural_local_identifiability.md",
+            caption="../report/structural_local_identifiability.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"1 Local identifiability (Jacobian){NET_MARK}",
+        ),
         spectra=f"{STRUCT}/jacobian_spectra.csv",
     log:
         f"{NET_LOGS}/structural_jacobian.log",
@@ -340,8 +369,9 @@ rule structural_jacobian_figure:
     output:
         figure=report(
             f"{STRUCT}/jacobian_spectra.png",
-            category="Structural study",
             caption="../report/structural_jacobian.rst",
+            category=REPORT_BEYOND,
+            subcategory=f"1 Local identifiability (Jacobian){NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/structural_jacobian_figure.log",

@@ -18,9 +18,19 @@ wildcard_constraints:
 rule network_tables:
     output:
         architecture_csv=f"{TABLES}/{{study}}_architectures.csv",
-        architecture_md=f"{TABLES}/{{study}}_architectures.md",
+        architecture_md=report(
+            f"{TABLES}/{{study}}_architectures.md",
+            caption="../report/network_architectures.rst",
+            category=report_study,
+            subcategory="2 Networks",
+        ),
         schedule_csv=f"{TABLES}/{{study}}_schedules.csv",
-        schedule_md=f"{TABLES}/{{study}}_schedules.md",
+        schedule_md=report(
+            f"{TABLES}/{{study}}_schedules.md",
+            caption="../report/network_schedules.rst",
+            category=report_study,
+            subcategory="2 Networks",
+        ),
     log:
         f"{LOGS}/network_tables/{{study}}.log",
     benchmark:
@@ -166,9 +176,9 @@ rule plot_training_losses:
     output:
         figure=report(
             f"{TRAINING}/{{study}}/{{network}}_losses.png",
-            category="Training",
-            subcategory="{study}",
             caption="../report/training_losses.rst",
+            category=report_study,
+            subcategory="2 Networks",
         ),
     log:
         f"{LOGS}/plot_training_losses/{{study}}_{{network}}.log",
@@ -194,7 +204,12 @@ rule emulator_validation:
         validation=f"{DATA}/{{study}}/validation.parquet",
     output:
         csv=f"{NET_TABLES}/{{study}}_emulator_validation.csv",
-        md=f"{NET_TABLES}/{{study}}_emulator_validation.md",
+        md=report(
+            f"{NET_TABLES}/{{study}}_emulator_validation.md",
+            caption="../report/emulator_validation.rst",
+            category=report_study,
+            subcategory=f"2 Networks{NET_MARK}",
+        ),
     log:
         f"{NET_LOGS}/emulator_validation/{{study}}.log",
     benchmark:
@@ -243,9 +258,9 @@ rule emulator_l2_histogram:
     output:
         figure=report(
             f"{NET_TRAINING}/{{study}}/emulator_l2_errors.png",
-            category="Training",
-            subcategory="{study}",
             caption="../report/emulator_l2.rst",
+            category=report_study,
+            subcategory=f"2 Networks{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/emulator_l2_histogram/{{study}}.log",
@@ -293,9 +308,9 @@ rule flow_marginals:
     output:
         figure=report(
             f"{NET_TRAINING}/{{study}}/flow_delta{{delta}}_marginals.png",
-            category="Training",
-            subcategory="{study}",
             caption="../report/flow_marginals.rst",
+            category=report_study,
+            subcategory=f"2 Networks{NET_MARK}",
         ),
     log:
         f"{NET_LOGS}/flow_marginals/{{study}}_delta{{delta}}.log",

@@ -100,22 +100,22 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
     h = paper_values.STRUCTURAL_HEADLINES
     manifold = _read_json(files["manifold"])
     add("manifold_l2", "Manifold reconstruction of y*: max relative l2 error (%)", 100 * h["max_rel_error_manifold"],
-        "section 3.3.2, fig. 8", files["manifold"], 100 * manifold["max_rel_l2_error"])
+        "section 3.3.1, fig. 8", files["manifold"], 100 * manifold["max_rel_l2_error"])
     spread = manifold.get("max_rel_l2_error_resampled")
     if spread:  # beyond the paper: the same max, for other draws than the first 100
         add("manifold_l2_resampled", f"Manifold reconstruction: the same max over {spread['subset']} draws, median over "
             f"{spread['resamples']:,} random sets of {spread['subset']} of {spread['n_simulated']:,} draws (%)",
-            100 * h["max_rel_error_manifold"], "section 3.3.2, fig. 8", files["manifold"], 100 * spread["q50"])
+            100 * h["max_rel_error_manifold"], "section 3.3.1, fig. 8", files["manifold"], 100 * spread["q50"])
     svd = _read_json(files["svd"])
     add("svd_modes", "SVD of the manifold: modes for 99% of the energy", h["modes_99"], "section 3.3.2, fig. 10",
         files["svd"], svd["modes"])
     add("svd_energy", "SVD of the manifold: energy held by those modes (%)", 100 * h["energy_at_modes"],
         "section 3.3.2, fig. 10", files["svd"], 100 * svd["energy"])
     add("missing_l2", "Missing data: max relative l2 error on the observed entries (%)",
-        100 * h["max_rel_error_missing"], "section 3.3.3, fig. 9", files["missing"],
+        100 * h["max_rel_error_missing"], "section 3.3.3, fig. 11", files["missing"],
         100 * _read_json(files["missing"])["max_rel_l2_error_observed"])
     add("ehr_emulator_l2", "EHR emulator: max relative l2 error on the validation sets (%)",
-        100 * paper_values.EHR_EMULATOR_MAX_REL_L2, "section 3.4, fig. 11", files["ehr_emulator"],
+        100 * paper_values.EHR_EMULATOR_MAX_REL_L2, "section 3.4, fig. 12", files["ehr_emulator"],
         100 * _read_json(files["ehr_emulator"])["max"])
     ek = pd.read_csv(files["ehr_errors"])
     outputs = ek_outputs(ek)
@@ -135,7 +135,7 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
         for j in range(1, 5):
             q = f"lambda_{j} (1/s)"
             add(f"lambda_{j}_{instant.split()[1]}", f"Stiffness: lambda_{j} of A(t) at {instant} (1/s)",
-                paper_values.STIFFNESS_EXTREMES[instant]["lambdas"][j - 1], "section 3.1, figs. 3-4",
+                paper_values.STIFFNESS_EXTREMES[instant]["lambdas"][j - 1], "section 3.1, figs. 4-5",
                 files["stiffness"], float(rows_i.loc[q, "This work"]))
     return values, rows
 

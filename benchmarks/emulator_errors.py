@@ -13,7 +13,7 @@ mean and the max absolute error). Variants: ``paper``
 
     .venv/bin/python benchmarks/emulator_errors.py --study ehr --epochs 2000 --jobs 2
 
-Writes ``benchmarks/results/emulator_errors_<study>.csv``.
+Writes ``benchmarks/results/emulator_errors_<study>.json``.
 """
 from __future__ import annotations
 
@@ -91,7 +91,11 @@ def main(argv=None) -> pd.DataFrame:
     ap.add_argument("--configfile", type=Path, default=ROOT / "config" / "config.yaml")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), help=f"of {list(VARIANTS)}")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=YAML")
+    import results_io
+
+    results_io.add_note_argument(ap)
     args = ap.parse_args(argv)
+    run = results_io.Run(None if argv is None else ["benchmarks/emulator_errors.py", *argv])
     base = dict(yaml.safe_load(args.configfile.read_text())["training"]["studies"][args.study]["emulator"])
     base.pop("restarts", None)
     base.pop("restart_epochs", None)
@@ -104,10 +108,18 @@ def main(argv=None) -> pd.DataFrame:
     jobs = [(n, args.study, {**base, **over}, args.seed) for n, over in variants.items()]
     with mp.get_context("spawn").Pool(args.jobs) as pool:
         table = pd.DataFrame(pool.map(_run, jobs, chunksize=1))
-    out = ROOT / "benchmarks" / "results" / f"emulator_errors_{args.study}.csv"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out, index=False)
     print(table.to_markdown(index=False, floatfmt=".3g"))
+    formats = {c: ".3g" for c in table.columns if c not in ("variant", "top_output")}
+    formats["top_share"] = ".0%"
+    run.save(f"emulator_errors_{args.study}", f"Emulator error per architecture variant ({args.study} study)",
+             f"The {args.study} study's emulator trained once per variant on the workflow's data (the config's "
+             f"schedule, one initialization, one thread each): relative l2 error over the validation sets "
+             f"(worst, 99th percentile, median, in %), the held-out MSE, the CPU seconds of the training, and the "
+             f"output holding the largest share of the mean squared relative error.",
+             [results_io.table(table, "variants", "Per variant.", formats)],
+             parameters={"study": args.study, "epochs": base["epochs"], "seed": args.seed, "jobs": args.jobs,
+                         "configfile": args.configfile.resolve(),
+                         "variants": {n: dict(o) for n, o in variants.items()}}, note=args.note)
     return table
 
 

@@ -12,6 +12,9 @@ the ratio, and estimates the training's CPU seconds for the whole config and the
 
     .venv/bin/python benchmarks/machine_speed.py
     .venv/bin/python benchmarks/machine_speed.py --configfile config/paper.yaml --epochs 3
+
+Writes ``benchmarks/results/machine_speed.json`` (``machine_speed_<config>.json`` for another
+config file than ``config/config.yaml``).
 """
 from __future__ import annotations
 
@@ -138,7 +141,11 @@ def main() -> None:
     ap.add_argument("--cores", type=int, default=2, help="cores of the run to estimate")
     ap.add_argument("--rows", type=int, default=400, help="distinct simulated sets per study")
     ap.add_argument("--seed", type=int, default=2024)
+    import results_io
+
+    results_io.add_note_argument(ap)
     args = ap.parse_args()
+    run = results_io.Run()
 
     import torch
 
@@ -166,6 +173,25 @@ def main() -> None:
     print(f"\ntraining: {total:,.0f} CPU-s estimated; on {args.cores} cores at least {wall / 60:.0f} minutes wall "
           f"(the longer of the total over the cores and the structural chain; simulation, the study rules and "
           f"scheduling gaps not counted)")
+    config = Path(args.configfile).resolve()
+    name = "machine_speed" if config == (ROOT / "config" / "config.yaml").resolve() else f"machine_speed_{config.stem}"
+    totals = pd.DataFrame({"quantity": ["training CPU seconds (estimate)", "cores",
+                                        "wall minutes on those cores, at least (estimate)"],
+                           "value": [total, args.cores, wall / 60]})
+    run.save(
+        name, f"Training cost per network ({config.name})",
+        f"Each network of {results_io.portable(str(config))} trained for {args.epochs} epochs (at least one "
+        f"evaluation) through the workflow's training code, one thread, on synthetic data of the config's split "
+        f"sizes: CPU seconds per epoch; the epochs of the config's schedule (restart candidates included) and "
+        f"copies (noise levels) give each network's CPU seconds. The timed run's column is a constant of "
+        f"this script (the README's timed run at commit bfc86cf, its per-job files per rule over its epochs), "
+        f"not measured here. An estimate: simulation, the study rules and scheduling gaps are not counted.",
+        [results_io.table(df, "networks", "CPU seconds per epoch per network, and for the config's schedule.",
+                          {"cpu_s_per_epoch": ".3g", "cpu_s": ",.0f", "timed_run_cpu_s_per_epoch": ".3g",
+                           "ratio_to_timed_run": ".2f"}),
+         results_io.table(totals, "estimate", "The whole config's training.", {"value": ",.0f"})],
+        parameters={"configfile": config, "epochs": args.epochs, "cores": args.cores, "rows": args.rows,
+                    "seed": args.seed}, note=args.note)
 
 
 def _merge(base: dict, new: dict) -> None:

@@ -6,9 +6,9 @@ seed=2025``), in a checkout of its own; this reads each run's
 the paper's value, each run's value and its ratio to the paper, and the spread of the ratios
 (largest over smallest, a ratio >= 1).
 
-    .venv/bin/python benchmarks/seed_spread.py seed2024=../run-a seed2025=../run-b --markdown
+    .venv/bin/python benchmarks/seed_spread.py seed2024=<checkout> seed2025=<checkout> --markdown
 
-Output: the table on stdout, and ``benchmarks/results/seed_spread.csv``.
+Output: the table on stdout, and ``benchmarks/results/seed_spread.json``.
 """
 from __future__ import annotations
 
@@ -17,7 +17,6 @@ from pathlib import Path
 
 import pandas as pd
 
-ROOT = Path(__file__).resolve().parent
 SCORECARD = Path("results/report/reproduction.csv")
 
 
@@ -50,7 +49,11 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", metavar="NAME=DIR", help="a run's checkout, named")
     parser.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    import results_io
+
+    results_io.add_note_argument(parser)
     args = parser.parse_args(argv)
+    run = results_io.Run(None if argv is None else ["benchmarks/seed_spread.py", *argv])
     runs = {}
     for item in args.runs:
         name, sep, root = item.partition("=")
@@ -58,10 +61,16 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
             parser.error(f"{item!r} is not NAME=DIR")
         runs[name] = Path(root)
     table = seed_spread(runs)
-    out = ROOT / "results" / "seed_spread.csv"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out)
     print(table.to_markdown(floatfmt=".3g") if args.markdown else table.to_string(float_format="%.3g"))
+    formats = {c: ".3g" for c in table.columns}
+    run.save("seed_spread", "Reproduction scorecard across master seeds",
+             "The reproduction scorecard (results/report/reproduction.csv, the trained column) of several "
+             "runs of the workflow that differ in the master seed only, side by side: each run's value and its "
+             "ratio to the paper per headline, and the spread of the ratios (largest over smallest).",
+             [results_io.table(table, "scorecards", "Per headline: the paper's value, each run's and its ratio "
+                               "to the paper, and the spread of the ratios.", formats, index=True)],
+             parameters={"runs": {name: results_io.portable(str(Path(root).resolve())) for name, root in runs.items()}},
+             note=args.note)
     return table
 
 

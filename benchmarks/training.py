@@ -15,8 +15,10 @@ through a fixed emulator file (``--emulator``, default the workflow's).
     .venv/bin/python benchmarks/training.py --study structural --network emulator --seconds 600 \
         --variant 'cosine={lr_schedule: cosine, warmup_epochs: 20, lr_final: 0.0}'
 
-Writes ``benchmarks/results/training_<study>_<network>[_delta<d>].csv`` (one row per epoch
-and schedule) and a PNG of the curves beside it.
+Writes ``benchmarks/results/training_<study>_<network>[_delta<d>].json``: the best held-out
+error of each schedule within fractions of the budget, and each schedule's best-so-far curve
+(at most ``CURVE_POINTS`` points). ``--losses FILE.csv`` also writes every epoch's losses (one
+row per epoch and schedule), ``--figure FILE.png`` a plot of the curves.
 """
 from __future__ import annotations
 
@@ -31,6 +33,8 @@ import pandas as pd
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Points kept of each schedule's best-so-far curve in the result file.
+CURVE_POINTS = 100
 METRIC = {"emulator": ("test_loss", "held-out MSE (standardized outputs)"),
           "flow": ("test_loss", "held-out NLL (nats)"),
           "encoder_decoder": ("test_decoder", "held-out decoder MSE (standardized parameters)")}
@@ -80,6 +84,45 @@ def reached(df: pd.DataFrame, metric: str, fractions: list[float], budget: float
     return pd.DataFrame(rows)
 
 
+def curves(df: pd.DataFrame, metric: str, points: int = CURVE_POINTS) -> pd.DataFrame:
+    """Each schedule's best-so-far held-out error against its cumulative CPU seconds, at most
+    ``points`` rows per schedule: the epochs where the best improved, evenly thinned, the last
+    epoch always kept."""
+    parts = []
+    for name, g in df.groupby("schedule", sort=False):
+        g = g[np.isfinite(g[metric])]
+        if g.empty:
+            continue
+        best = g[metric].cummin()
+        keep = g[best.diff().fillna(-1.0).lt(0.0).to_numpy()].index.append(g.index[-1:]).unique()
+        if len(keep) > points:
+            keep = keep[np.unique(np.linspace(0, len(keep) - 1, points).round().astype(int))]
+        parts.append(pd.DataFrame({"schedule": name, "epoch": g.loc[keep, "epoch"].astype(int),
+                                   "cpu_seconds_total": g.loc[keep, "cpu_seconds_total"],
+                                   f"best_{metric}": best[keep]}))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
+
+
+def plot(df: pd.DataFrame, metric: str, label: str, title: str, path: Path) -> None:
+    """The best-so-far curves of the schedules, to ``path`` (no pyplot: no backend chosen)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.subplots()
+    for name, g in df.groupby("schedule", sort=False):
+        g = g[np.isfinite(g[metric])]
+        ax.plot(g["cpu_seconds_total"], g[metric].cummin(), label=name, lw=1.3)
+    if (df[metric].dropna() > 0).all():
+        ax.set_yscale("log")
+    ax.set_xlabel("CPU seconds (one thread)")
+    ax.set_ylabel(f"best {label}")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", choices=["structural", "ehr"], default="structural")
@@ -93,7 +136,13 @@ def main() -> None:
     ap.add_argument("--no-ours", action="store_true", help="skip our schedule (variants still build on it)")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME=YAML",
                     help="a schedule: these keys merged onto ours (repeatable)")
+    ap.add_argument("--losses", type=Path, default=None, help="also write every epoch's losses to this CSV")
+    ap.add_argument("--figure", type=Path, default=None, help="also plot the curves to this PNG")
+    import results_io
+
+    results_io.add_note_argument(ap)
     args = ap.parse_args()
+    run = results_io.Run()
 
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())["training"]["studies"][args.study]
     delta = float(cfg["noise_levels"][0] if args.delta is None else args.delta)
@@ -110,36 +159,31 @@ def main() -> None:
     with mp.get_context("spawn").Pool(min(args.jobs, len(jobs))) as pool:
         df = pd.concat(pool.map(_run, jobs), ignore_index=True)
 
-    out_dir = ROOT / "benchmarks" / "results"
-    out_dir.mkdir(parents=True, exist_ok=True)
     stem = f"training_{args.study}_{args.network}" + (f"_delta{delta:g}" if args.network != "emulator" else "")
-    df.to_csv(out_dir / f"{stem}.csv", index=False)
+    if args.losses:
+        df.to_csv(args.losses, index=False)
     metric, label = METRIC[args.network]
     table = reached(df, metric, [0.25, 0.5, 1.0], args.seconds)
     print(f"{args.study} {args.network} (delta={delta:g}), {args.seconds:g} CPU-s per schedule; best {label}:")
     print(table.to_string(index=False, float_format=lambda x: f"{x:.4g}"))
     for name, h in schedules.items():
         print(f"  {name}: {h}")
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name, g in df.groupby("schedule", sort=False):
-        g = g[np.isfinite(g[metric])]
-        ax.plot(g["cpu_seconds_total"], g[metric].cummin(), label=name, lw=1.3)
-    if (df[metric].dropna() > 0).all():
-        ax.set_yscale("log")
-    ax.set_xlabel("CPU seconds (one thread)")
-    ax.set_ylabel(f"best {label}")
-    ax.set_title(f"{args.study} {args.network}" + (f", delta={delta:g}" if args.network != "emulator" else ""))
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out_dir / f"{stem}.png", dpi=120)
-    print(f"wrote {out_dir / stem}.csv and .png")
+    title = f"{args.study} {args.network}" + (f", delta={delta:g}" if args.network != "emulator" else "")
+    if args.figure:
+        plot(df, metric, label, title, args.figure)
+    run.save(
+        stem, f"Training: held-out error against CPU seconds ({title})",
+        f"The {args.study} study's {args.network} trained from the same seed and data under each schedule for "
+        f"the same CPU budget (one thread each, side by side): our schedule (config/config.yaml), the paper's "
+        f"(config/paper.yaml, cut off at the budget) and any variant (keys merged onto ours). Best {label} "
+        f"reached within fractions of the budget; the curves are in the file.",
+        [results_io.table(table, "reached", f"Best {label} within each fraction of the CPU budget per schedule.",
+                          {c: ".4g" for c in table.columns if c not in ("schedule", "epochs")}),
+         results_io.table(curves(df, metric), "curves", f"Best-so-far {label} against CPU seconds, per schedule "
+                          f"(thinned).", {}, page=False)],
+        parameters={"study": args.study, "network": args.network, "cpu_seconds_per_schedule": args.seconds,
+                    "noise_level": delta, "seed": args.seed, "jobs": args.jobs, "schedules": schedules},
+        note=args.note)
 
 
 if __name__ == "__main__":

@@ -6,10 +6,14 @@ memory ``max_rss`` in MB). This sums them per rule, largest CPU first, and gives
 where the CPU time of a ``snakemake --cores 2 all`` run went.
 
     .venv/bin/python benchmarks/workflow_times.py            # logs/benchmarks/ of this checkout
-    .venv/bin/python benchmarks/workflow_times.py --root ../other-clone/logs/benchmarks --markdown
+    .venv/bin/python benchmarks/workflow_times.py --root <other checkout>/logs/benchmarks --markdown
 
 A file left from an earlier run of another rule set is counted too: run it on the
 ``logs/benchmarks/`` of a fresh clone for one run's figures.
+
+Writes ``benchmarks/results/workflow_times.json``: the per-rule table of each source (the
+trained networks' run, and the published networks' where present) and every job, whatever
+``--source`` and ``--jobs`` print.
 """
 from __future__ import annotations
 
@@ -58,27 +62,62 @@ def rule_times(jobs: pd.DataFrame) -> pd.DataFrame:
     return pd.concat([table, total]).rename_axis("rule").reset_index()
 
 
+#: How the per-rule and per-job tables are shown (the page and ``--markdown``).
+FORMATS = {"cpu_s": ",.0f", "wall_s": ",.0f", "longest_wall_s": ",.0f", "max_rss_mb": ",.0f", "cpu_share": ".1%"}
+
+
 def main() -> None:
+    import results_io
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=JOB_BENCHMARKS, help="the workflow's logs/benchmarks/ folder")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
     ap.add_argument("--jobs", action="store_true", help="one row per job instead of per rule")
     ap.add_argument("--source", choices=["trained", "published", "all"], default="trained",
                     help="which run's files: the trained networks' (default), the published ones', or both")
+    results_io.add_note_argument(ap)
     args = ap.parse_args()
-    jobs = job_times(args.root)
+    run = results_io.Run()
+    all_jobs = job_times(args.root)
+    jobs = all_jobs.copy()
     if args.source == "all":
         jobs["rule"] = [r if s == "trained" else f"{s}/{r}" for s, r in zip(jobs["source"], jobs["rule"])]
     else:
         jobs = jobs[jobs["source"] == args.source]
     table = jobs.sort_values("cpu_s", ascending=False) if args.jobs else rule_times(jobs)
-    fmt = {"cpu_s": "{:.0f}".format, "wall_s": "{:.0f}".format, "longest_wall_s": "{:.0f}".format,
-           "max_rss_mb": "{:.0f}".format, "cpu_share": "{:.1%}".format}
     shown = table.copy()
-    for col, f in fmt.items():
+    for col, f in FORMATS.items():
         if col in shown:
-            shown[col] = shown[col].map(f)
+            shown[col] = shown[col].map(("{:" + f.replace(",", "") + "}").format)
     print(shown.to_markdown(index=False) if args.markdown else shown.to_string(index=False))
+
+    tables = []
+    for source in ("trained", "published"):
+        part = all_jobs[all_jobs["source"] == source]
+        if len(part):
+            tables.append(results_io.table(
+                rule_times(part), f"rules_{source}",
+                f"Per rule, the {source} networks' jobs: CPU and wall seconds summed over the jobs, the longest "
+                f"job's wall seconds, peak memory (MB) and share of the CPU seconds; largest first.", FORMATS))
+    every = all_jobs.sort_values(["source", "rule", "job"]).reset_index(drop=True)
+    tables.append(results_io.table(every, "jobs", "Every job: its wall and CPU seconds and peak memory (MB).",
+                                   FORMATS, page=False))
+    newest = max(p.stat().st_mtime for p in Path(args.root).rglob("*.tsv"))
+    run.save(
+        "workflow_times", "Workflow: CPU and wall seconds per rule",
+        "Where a run of the workflow spent its time: Snakemake's per-job benchmark files (the rules' "
+        "benchmark: directive) summed per rule. Wall seconds are summed over the jobs, so they exceed "
+        "the run's elapsed time when jobs ran side by side. The machine and load average of this section are "
+        "the summary's, not the run's: the note, if any, says where the jobs ran.",
+        tables, parameters={"root": Path(args.root).resolve(), "job_files": len(all_jobs),
+                            "newest_job_file_utc": _utc(newest)}, note=args.note)
+
+
+def _utc(timestamp: float) -> str:
+    import datetime as dt
+
+    when = dt.datetime.fromtimestamp(timestamp, dt.timezone.utc).replace(microsecond=0)
+    return when.isoformat().replace("+00:00", "Z")
 
 
 if __name__ == "__main__":

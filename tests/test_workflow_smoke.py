@@ -311,3 +311,47 @@ def test_calibration_stage_end_to_end(trained_run):
     b = ok.groupby("id").first()
     cols = ["completed_" + n for n in registry.OUTPUT_NAMES]
     np.testing.assert_array_equal(a.loc[b.index, cols].to_numpy(), b[cols].to_numpy())
+
+
+def planned_rules(dry_run_output: str) -> dict[str, int]:
+    """Rule -> job count from the ``Job stats`` table of a Snakemake dry run."""
+    planned, inside = {}, False
+    for line in dry_run_output.splitlines():
+        parts = line.split()
+        if line.startswith("Job stats:"):
+            inside = True
+        elif inside and len(parts) == 2 and parts[1].isdigit() and parts[0] != "total":
+            planned[parts[0]] = int(parts[1])
+        elif inside and parts and parts[0] == "total":
+            break
+    return planned
+
+
+@needs_local_ehr
+@pytest.mark.parametrize("module", ["structural_figures", "ehr_figures", "calibration_figures",
+                                    "stiffness_figures"])
+def test_editing_a_figure_module_replans_its_figures_only(trained_run, module):
+    """After the whole study ran, an edit of one figure module plans the rules that draw with it
+    and nothing else: no simulation, no training, no table."""
+    from test_workflow import rule_functions
+
+    work = trained_run
+    targets = ["all", "calibration"]
+    fresh = snakemake("-n", *targets, *SMOKE, cwd=work)
+    assert fresh.returncode == 0 and planned_rules(fresh.stdout + fresh.stderr) == {}, fresh.stdout[-2000:]
+    drawing = {rule for rule, function in rule_functions().items()
+               if function.startswith(f"cvsim6.reporting.{module}:")}
+    assert drawing, module
+    code = work / "src/cvsim6/reporting" / f"{module}.py"
+    text, stat = code.read_text(), code.stat()
+    try:
+        code.write_text(text.replace('"""', '"""Edited. ', 1))  # an edit of the module's text only
+        proc = snakemake("-n", *targets, *SMOKE, cwd=work)
+    finally:  # the shared tree stays up to date for the other tests
+        code.write_text(text)
+        os.utime(code, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    planned = planned_rules(proc.stdout + proc.stderr)
+    assert proc.returncode == 0 and planned, proc.stderr[-2000:]
+    planned.pop("all", None)
+    planned.pop("calibration", None)
+    assert planned and set(planned) <= drawing, sorted(set(planned) - drawing)

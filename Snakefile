@@ -36,6 +36,7 @@ include: "workflow/rules/structural.smk"
 include: "workflow/rules/published.smk"
 include: "workflow/rules/scorecard.smk"
 include: "workflow/rules/calibration.smk"
+include: "workflow/rules/references.smk"
 
 
 localrules:

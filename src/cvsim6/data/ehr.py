@@ -16,7 +16,7 @@ import pandas as pd
 
 from cvsim6.data.downloads import download_checked
 from cvsim6.registry import OUTPUT_NAMES
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 log = logging.getLogger(__name__)
 

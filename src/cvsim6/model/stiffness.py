@@ -32,7 +32,7 @@ from cvsim6.model import equations as model
 from cvsim6 import paper_values
 from cvsim6 import registry
 from cvsim6.model import solver
-from cvsim6.reporting import tables
+from cvsim6 import table_files
 
 log = logging.getLogger(__name__)
 
@@ -198,7 +198,7 @@ def extremes(eigenvalues: str, trajectory: str, eigenvectors: str, csv: str, md:
     Path(eigenvectors).parent.mkdir(parents=True, exist_ok=True)
     pd.DataFrame(vec_rows).to_csv(eigenvectors, index=False)
     df = pd.DataFrame(table, columns=["Instant", "Quantity", "This work", "Paper"])
-    tables.write_table(df, csv, md, caption="Eigenvalues of A(t) at the extremes of SR(t), last two cycles "
+    table_files.write_table(df, csv, md, caption="Eigenvalues of A(t) at the extremes of SR(t), last two cycles "
                        "(paper figures 3-4; paper SR recomputed from its eigenvalues with the same rule)")
 
 
@@ -272,6 +272,6 @@ def rk4_study(series: str, csv: str, md: str, rtol: float, rk4_steps: list[float
         log.info("RK4 h = %g s: %s", h, rows[-1])
     Path(series).parent.mkdir(parents=True, exist_ok=True)
     pd.concat(frames, ignore_index=True).to_csv(series, index=False)
-    tables.write_table(pd.DataFrame(rows), csv, md,
+    table_files.write_table(pd.DataFrame(rows), csv, md,
                        caption="Explicit RK4 at fixed steps vs Radau: volume drift and left-ventricular pressure error "
                        "(RK4 is stable on the negative real axis only for h abs(lambda) < 2.79)")

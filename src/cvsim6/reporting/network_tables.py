@@ -6,7 +6,7 @@ import pandas as pd
 
 from cvsim6 import nets as nw
 from cvsim6.paper_values import PARAMETER_COUNTS
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 
 def network_tables(training: dict, study: str) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -22,7 +22,7 @@ import pandas as pd
 
 from cvsim6 import paper_values
 from cvsim6.registry import OUTPUT_NAMES
-from cvsim6.reporting.tables import to_markdown
+from cvsim6.table_files import to_markdown
 
 #: The workflow outputs a source's headlines are read from (keys of ``headline_files``).
 HEADLINE_FILES = ("stiffness", "structural_emulator", "structural_inversion", "manifold", "svd",

@@ -30,7 +30,7 @@ from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.inference.npe import load_npe
 from cvsim6.data.priors import prior_bounds
 from cvsim6.registry import PARAMETER_NAMES
-from cvsim6.reporting.tables import to_markdown
+from cvsim6.table_files import to_markdown
 
 log = logging.getLogger(__name__)
 

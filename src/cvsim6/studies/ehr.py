@@ -24,7 +24,7 @@ from cvsim6.model.equations import outside_domain
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.registry import OUTPUT_BY_NAME, OUTPUT_INDEX, OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES
 from cvsim6.model.solver import STATUS_OUTSIDE_DOMAIN, STATUS_REASONS, STATUS_UNPHYSICAL, unphysical
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 log = logging.getLogger(__name__)
 

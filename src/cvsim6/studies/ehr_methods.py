@@ -25,7 +25,7 @@ from cvsim6.model import solver
 from cvsim6.studies.ehr import PRED, error_per_output
 from cvsim6.inference.npe import load_npe
 from cvsim6.registry import OUTPUT_NAMES, OUTPUTS, PARAMETER_NAMES
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 log = logging.getLogger(__name__)
 

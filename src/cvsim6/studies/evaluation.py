@@ -13,7 +13,7 @@ from cvsim6.data import datasets
 from cvsim6 import paper_values
 from cvsim6.nets import load_model
 from cvsim6.registry import OUTPUT_NAMES, OUTPUTS
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 log = logging.getLogger(__name__)
 

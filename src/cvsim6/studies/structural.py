@@ -23,7 +23,7 @@ from cvsim6.model import solver
 from cvsim6.model.equations import outside_domain
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES
-from cvsim6.reporting.tables import write_table
+from cvsim6.table_files import write_table
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,62 @@
+"""The package's shape guards what the layout promises: small modules and functions, and
+computation that never imports the reporting layer (so editing a table's or a figure's look
+reruns that table or figure only)."""
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+
+import pytest
+
+from conftest import ROOT
+
+PACKAGE = ROOT / "src" / "cvsim6"
+SOURCES = sorted(PACKAGE.rglob("*.py"))
+#: Subpackages that compute: none of their modules may load cvsim6.reporting.
+COMPUTING = ("model", "data", "nets", "training", "inference")
+
+
+def module_name(path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_no_module_over_600_lines_and_no_function_over_100():
+    long_modules = [f"{p.name}: {n}" for p in SOURCES if (n := len(p.read_text().splitlines())) > 600]
+    long_functions = []
+    for path in SOURCES:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if (n := node.end_lineno - node.lineno + 1) > 100:
+                    long_functions.append(f"{module_name(path)}.{node.name}: {n}")
+    assert not long_modules and not long_functions, (long_modules, long_functions)
+
+
+def test_no_backend_chosen_anywhere():
+    """matplotlib picks its backend itself: no matplotlib.use in the package."""
+    offenders = [p.name for p in SOURCES if "matplotlib.use(" in p.read_text()]
+    assert not offenders, offenders
+
+
+@pytest.mark.parametrize("subpackage", COMPUTING)
+def test_computation_does_not_import_reporting(subpackage):
+    modules = [module_name(p) for p in SOURCES if p.relative_to(PACKAGE).parts[0] == subpackage]
+    assert len(modules) >= 3
+    code = ("import importlib, sys\n"
+            f"for m in {modules!r}: importlib.import_module(m)\n"
+            "print(sorted(n for n in sys.modules if n.startswith('cvsim6.reporting')))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]", f"cvsim6.{subpackage} loads {proc.stdout.strip()}"
+
+
+def test_studies_import_no_figure_module():
+    """The studies compute and write tables; figures are drawn by rules of their own."""
+    modules = [module_name(p) for p in SOURCES if p.relative_to(PACKAGE).parts[0] == "studies"]
+    code = ("import importlib, sys\n"
+            f"for m in {modules!r}: importlib.import_module(m)\n"
+            "print(sorted(n for n in sys.modules if n.startswith('cvsim6.reporting')))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "figures" not in proc.stdout, proc.stdout

@@ -8,12 +8,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from cvsim6.model_files import FORMAT, read_info, read_payload
 from cvsim6.nets.emulator import Emulator
 from cvsim6.nets.encoder_decoder import EncoderDecoder
 from cvsim6.nets.flow import RealNVP
 
-#: Version tag stored in every saved model file.
-FORMAT = "cvsim6-invaert/1"
 MODEL_CLASSES: dict[str, type[nn.Module]] = {
     Emulator.kind: Emulator, RealNVP.kind: RealNVP, EncoderDecoder.kind: EncoderDecoder,
 }
@@ -58,27 +57,12 @@ def save_model(model: nn.Module, path: str | Path, info: dict | None = None) -> 
     tmp.replace(path)
 
 
-def _read_payload(path: str | Path) -> dict:
-    """The dictionary :func:`save_model` wrote, checked to be one (on the CPU)."""
-    payload = torch.load(path, map_location="cpu", weights_only=True)
-    fmt = payload.get("format") if isinstance(payload, dict) else None
-    if fmt != FORMAT:
-        raise ValueError(f"{path}: not a {FORMAT} model file (format={fmt!r})")
-    return payload
-
-
-def read_info(path: str | Path) -> dict:
-    """The ``info`` a model file holds (training record, origin, noise level), without building
-    the model."""
-    return _read_payload(path).get("info", {})
-
-
 def load_model(path: str | Path, map_location: str | torch.device = "cpu", with_info: bool = False):
     """Rebuild a model saved by :func:`save_model`, in eval mode on ``map_location``.
 
     With ``with_info=True`` returns ``(model, info)``.
     """
-    payload = _read_payload(path)
+    payload = read_payload(path)
     model = build_model(payload["kind"], payload["config"])
     dtype = next(t.dtype for t in payload["state_dict"].values() if t.is_floating_point())
     model.to(dtype=dtype)

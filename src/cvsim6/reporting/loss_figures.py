@@ -3,8 +3,8 @@
 A module of its own, imported by no training code: the workflow draws each figure in a rule of
 its own, so a change here redraws the figures without retraining a network (a rule reruns when
 a package module it imports changes, see :mod:`cvsim6.workflow.codegraph`). For the same reason
-it imports no network or training module: the model file's ``info`` is read with torch alone
-(:func:`model_info`), so a change of the networks' code redraws no loss figure.
+it imports no network or training module: the model file's ``info`` is read through
+:mod:`cvsim6.model_files`, so a change of the networks' code redraws no loss figure.
 """
 from __future__ import annotations
 
@@ -15,10 +15,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.ticker import FormatStrFormatter, MaxNLocator
 
+from cvsim6.model_files import read_info
 from cvsim6.reporting.figures import subplots
-
-#: The format tag of a network's ``.pt`` file (:data:`cvsim6.nets.io.FORMAT`, not imported: see above).
-MODEL_FORMAT = "cvsim6-invaert/1"
 
 #: y-axis label per kind of network (the file-name stem before ``_delta``).
 LOSS_LABELS = {
@@ -45,7 +43,7 @@ def plot_training_losses(losses: str, figure: str, network: str, study: str = ""
     kind, delta = m.groups() if m.group(1) else ("emulator", None)
     ylabel = LOSS_LABELS[kind]
     if kind == "emulator" and "train_mse" in pd.read_csv(losses, nrows=0).columns:
-        ylabel = emulator_loss_label(model_info(model).get("hyper", {}) if model else {})
+        ylabel = emulator_loss_label(read_info(model).get("hyper", {}) if model else {})
     where = ", ".join(x for x in (study, f"delta={float(delta):g}" if delta else "") if x)
     title = {"npe": "NPE"}.get(kind, kind) + (f" ({where})" if where else "")
     restart = restart_record(model) if model else None
@@ -64,23 +62,11 @@ def emulator_loss_label(hyper: dict) -> str:
     return "MSE, " + ", ".join(words) if words else "weighted MSE (standardized outputs)"
 
 
-def model_info(model: str | Path) -> dict:
-    """The ``info`` a network's ``.pt`` file holds (what :func:`cvsim6.nets.io.read_info` returns),
-    read with torch alone (imported here, on use): the file must carry :data:`MODEL_FORMAT`."""
-    import torch
-
-    payload = torch.load(model, map_location="cpu", weights_only=True)
-    fmt = payload.get("format") if isinstance(payload, dict) else None
-    if fmt != MODEL_FORMAT:
-        raise ValueError(f"{model}: not a {MODEL_FORMAT} model file (format={fmt!r})")
-    return payload.get("info", {})
-
-
 def restart_record(model: str | Path) -> dict | None:
     """The restart record a network trained with restarts keeps in its ``.pt`` file's ``info``
     (``epochs``: the epoch of the choice; ``chosen``: the candidate kept; ``seeds`` and
     ``test_loss``: per candidate, ``inf`` for one that diverged), ``None`` without restarts."""
-    return model_info(model).get("restart")
+    return read_info(model).get("restart")
 
 
 def _mark_restart(ax, restart: dict) -> None:

@@ -11,8 +11,8 @@ import numpy as np
 
 #: The package sources training code may import, relative to the package folder: a folder
 #: stands for every source file under it. All of them enter :func:`training_code_digest`.
-DIGEST_SOURCES = ("__init__.py", "registry.py", "seeding.py", "workflow/__init__.py", "workflow/config.py",
-                  "model", "data", "nets", "training")
+DIGEST_SOURCES = ("__init__.py", "registry.py", "seeding.py", "model_files.py", "workflow/__init__.py",
+                  "workflow/config.py", "model", "data", "nets", "training")
 
 
 def array_digest(*arrays: np.ndarray) -> str:

@@ -49,6 +49,32 @@ def test_completions_keep_observed_entries_and_are_the_most_likely(flow):
     np.testing.assert_allclose(np.sort(all_lp)[::-1][:3], lp, rtol=1e-12)
 
 
+def test_shared_samples_complete_each_row_as_if_alone(flow):
+    """Rows with different missing sets, ranked against one shared stream of 3 chunks, get what
+    each row gets alone, and the top-k of a brute-force ranking of that stream."""
+    a = observation()
+    b = np.full(16, 48.0)
+    b[[0, 1, 3]] = np.nan
+    full = np.full(16, 51.0)
+    rows = np.vstack([a, full, b])
+    shared = inversion.complete_missing_shared(flow, rows, 10000, top_k=3, seed=5, chunk_size=4096)
+    samples = np.vstack([flow.sample_physical(min(4096, 10000 - 4096 * k),
+                                              inversion.seeded_torch_generator(inversion._block_seed(5, k)))
+                         for k in range(3)])
+    for y, (best, lp) in zip(rows, shared):
+        alone = inversion.complete_missing(flow, y, 10000, top_k=3, seed=5, chunk_size=4096)
+        np.testing.assert_array_equal(best, alone[0])
+        np.testing.assert_array_equal(lp, alone[1])
+        seen = np.isfinite(y)
+        assert (best[:, seen] == y[seen]).all()
+        if seen.all():
+            assert best.shape == (1, 16)
+            continue
+        brute = samples.copy()
+        brute[:, seen] = y[seen]
+        np.testing.assert_allclose(np.sort(flow.log_prob_physical(brute))[::-1][:3], lp, rtol=1e-6)
+
+
 def test_complete_observation_is_returned_unchanged(flow):
     y = np.full(16, 50.0)
     best, lp = inversion.complete_missing(flow, y, 100, top_k=1)

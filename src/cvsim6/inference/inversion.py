@@ -47,35 +47,67 @@ def complete_missing(flow, y_obs: np.ndarray, n_samples: int, top_k: int = 1, se
     their log-densities (top_k,), best first. With nothing missing, returns y_obs.
     ``chunk_size`` (rounded to whole blocks) bounds memory; results do not depend on it.
     """
-    y_obs = np.asarray(y_obs, float).reshape(N_OUTPUTS)
+    y_obs = np.asarray(y_obs, float).reshape(1, N_OUTPUTS)
+    return complete_missing_shared(flow, y_obs, n_samples, top_k=top_k, seed=seed, chunk_size=chunk_size)[0]
+
+
+@torch.no_grad()
+def complete_missing_shared(flow, y_obs: np.ndarray, n_samples: int, top_k: int = 1, seed: int = 0,
+                            chunk_size: int = 25 * SAMPLE_BLOCK,
+                            progress: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Algorithm 1 for every row of ``y_obs`` (n, 16), NaN = missing, all rows ranking the same
+    ``n_samples`` flow samples: each chunk of samples is drawn once and completed by every row.
+
+    Returns one ``(completions (top_k, 16), log-densities (top_k,))`` per row, as
+    :func:`complete_missing` gives for that row alone with the same ``seed`` (the same numbers:
+    each row's log-densities are computed on the same chunks). Drawing is half the cost of
+    ranking one sample, so sharing it halves the CPU time per row. ``progress``: a bar over chunks.
+    """
+    y_obs = np.asarray(y_obs, float).reshape(-1, N_OUTPUTS)
     missing = ~np.isfinite(y_obs)
-    if not missing.any():
-        lp = flow.log_prob_physical(y_obs[None])
-        return y_obs[None].copy(), np.asarray(lp, float).reshape(1)
+    out: list = [None] * len(y_obs)
+    for i in np.flatnonzero(~missing.any(axis=1)):
+        out[i] = (y_obs[i][None].copy(), np.asarray(flow.log_prob_physical(y_obs[i][None]), float).reshape(1))
+    rows = np.flatnonzero(missing.any(axis=1))
+    if len(rows) == 0:
+        return out
     flow.eval()
-    n_samples = int(n_samples)
+    n_samples, top_k = int(n_samples), int(top_k)
     n_blocks = -(-n_samples // SAMPLE_BLOCK)
     per_chunk = max(1, int(chunk_size) // SAMPLE_BLOCK)
-    best_y = np.empty((0, N_OUTPUTS))
-    best_lp = np.empty(0)
-    best_idx = np.empty(0, dtype=np.int64)
-    for b0 in range(0, n_blocks, per_chunk):
-        parts = []
-        for b in range(b0, min(n_blocks, b0 + per_chunk)):
-            n = min(SAMPLE_BLOCK, n_samples - b * SAMPLE_BLOCK)
-            parts.append(flow.sample_physical(n, generator=seeded_torch_generator(_block_seed(seed, b))))
-        y = np.vstack(parts)
-        y[:, ~missing] = y_obs[~missing]
-        lp = np.asarray(flow.log_prob_physical(y), float)
-        lp[~np.isfinite(lp)] = -np.inf
-        idx = np.arange(b0 * SAMPLE_BLOCK, b0 * SAMPLE_BLOCK + len(y))
-        # merge with the running top-k: sort by (-log p, sample index)
-        cy = np.vstack([best_y, y])
-        cl = np.concatenate([best_lp, lp])
-        ci = np.concatenate([best_idx, idx])
-        order = np.lexsort((ci, -cl))[:top_k]
-        best_y, best_lp, best_idx = cy[order], cl[order], ci[order]
-    return best_y, best_lp
+    best = {i: (np.empty((0, N_OUTPUTS)), np.empty(0), np.empty(0, dtype=np.int64)) for i in rows}
+    starts = range(0, n_blocks, per_chunk)
+    if progress:
+        from tqdm import tqdm
+
+        starts = tqdm(starts, unit="chunk", desc=f"Algorithm 1, {len(rows)} rows x {n_samples} samples")
+    for b0 in starts:
+        samples = np.vstack([
+            flow.sample_physical(min(SAMPLE_BLOCK, n_samples - b * SAMPLE_BLOCK),
+                                 generator=seeded_torch_generator(_block_seed(seed, b)))
+            for b in range(b0, min(n_blocks, b0 + per_chunk))])
+        idx = np.arange(b0 * SAMPLE_BLOCK, b0 * SAMPLE_BLOCK + len(samples))
+        for i in rows:
+            y = samples.copy()
+            y[:, ~missing[i]] = y_obs[i, ~missing[i]]
+            lp = np.asarray(flow.log_prob_physical(y), float)
+            lp[~np.isfinite(lp)] = -np.inf
+            best[i] = _merge_top_k(best[i], (y, lp, idx), top_k)
+    for i in rows:
+        out[i] = best[i][:2]
+    return out
+
+
+def _merge_top_k(best: tuple, new: tuple, top_k: int) -> tuple:
+    """The ``top_k`` of two ``(rows, log p, sample index)`` sets, by (-log p, sample index):
+    the new set is cut to its candidates (log p at or above its k-th largest) before sorting."""
+    y, lp, idx = new
+    if len(lp) > top_k:
+        keep = lp >= np.partition(lp, len(lp) - top_k)[len(lp) - top_k]
+        y, lp, idx = y[keep], lp[keep], idx[keep]
+    cy, cl, ci = np.vstack([best[0], y]), np.concatenate([best[1], lp]), np.concatenate([best[2], idx])
+    order = np.lexsort((ci, -cl))[:top_k]
+    return cy[order], cl[order], ci[order]
 
 
 def decode_latent(encdec, y: np.ndarray, n_latent: int, seed: int = 0,
@@ -112,7 +144,7 @@ def reference_scores(flow, y_simulated: np.ndarray, missing: np.ndarray, n_sampl
     hidden: row i scores ``complete_missing(flow, row_i, n_samples, seed=seed)[1][0]``.
 
     All rows are completed by the same ``n_samples`` flow samples, drawn once (up to
-    25 blocks of :data:`SAMPLE_BLOCK`; beyond that each row runs Algorithm 1 in chunks).
+    25 blocks of :data:`SAMPLE_BLOCK`; beyond that in chunks, :func:`complete_missing_shared`).
     A non-finite density counts as -inf.
     """
     y = np.asarray(y_simulated, float).reshape(-1, N_OUTPUTS)
@@ -125,8 +157,8 @@ def reference_scores(flow, y_simulated: np.ndarray, missing: np.ndarray, n_sampl
     n_samples = int(n_samples)
     n_blocks = -(-n_samples // SAMPLE_BLOCK)
     if n_blocks > 25:
-        return np.array([complete_missing(flow, np.where(missing, np.nan, r), n_samples, seed=seed)[1][0]
-                         for r in y])
+        done = complete_missing_shared(flow, np.where(missing, np.nan, y), n_samples, seed=seed)
+        return np.array([lp[0] for _, lp in done])
     samples = np.vstack([flow.sample_physical(min(SAMPLE_BLOCK, n_samples - b * SAMPLE_BLOCK),
                                               generator=seeded_torch_generator(_block_seed(seed, b)))
                          for b in range(n_blocks)])

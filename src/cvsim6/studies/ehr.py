@@ -133,7 +133,8 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
     ``reference_outputs`` (N, 16): simulated outputs for the OOD percentile (``n_reference``
     rows drawn with ``seed``) and the training range (all rows); None draws
     :data:`REFERENCE_FLOW_DRAWS` flow samples with ``seed`` instead. Every observation is
-    ranked against the same reference rows. A row that cannot be inverted does not stop
+    ranked against the same reference rows, and Algorithm 1 completes every observation from the
+    same ``n_flow_samples`` flow samples (drawn once with ``seed``). A row that cannot be inverted does not stop
     the others; each problem is passed to ``on_warning(id, message)`` (default: logged).
     Raises ValueError before computing anything for an unknown column, a value that is
     not a number, or one impossible in its unit (:func:`unit_problem`).
@@ -144,12 +145,16 @@ def invert_observations(observations: pd.DataFrame, flow, encdec, emulator, n_la
     reference = _Reference.build(flow, reference_outputs, n_reference, reference_flow_samples, seed)
     settings = dict(n_latent=int(n_latent), n_flow_samples=n_flow_samples, seed=seed, corrector_steps=corrector_steps,
                     warn=on_warning or _report)
+    y_all = obs.to_numpy()
+    seen = np.isfinite(y_all).any(axis=1)
+    completed = dict(zip(np.flatnonzero(seen), inversion.complete_missing_shared(
+        flow, y_all[seen], n_flow_samples, top_k=1, seed=seed, progress=progress)))
     it = obs.iterrows()
     if progress:
         from tqdm import tqdm
 
-        it = tqdm(it, total=len(obs), unit="patient", desc="invert")
-    rows = [_invert_row(pid, y.to_numpy(), k, flow, encdec, emulator, reference, **settings)
+        it = tqdm(it, total=len(obs), unit="patient", desc="decode")
+    rows = [_invert_row(pid, y.to_numpy(), k, completed.get(k), flow, encdec, emulator, reference, **settings)
             for k, (pid, y) in enumerate(it)]
     out = pd.concat(rows, ignore_index=True)[_COLUMNS]
     return out.astype({"draw": "Int64", "outside_domain": "boolean", "ood_reference_size": "Int64"})
@@ -220,11 +225,12 @@ class _Reference:
         return self._scores[key]
 
 
-def _invert_row(pid, y: np.ndarray, k: int, flow, encdec, emulator, reference: _Reference, n_latent: int,
-                n_flow_samples: int, seed: int, corrector_steps: int,
+def _invert_row(pid, y: np.ndarray, k: int, completion: tuple | None, flow, encdec, emulator,
+                reference: _Reference, n_latent: int, n_flow_samples: int, seed: int, corrector_steps: int,
                 warn: Callable[[object, str], None]) -> pd.DataFrame:
     """The rows of :func:`invert_observations` for observation ``pid`` (``y`` (16,), the
-    ``k``-th row: its random streams are seeded from ``seed`` and ``k``)."""
+    ``k``-th row: its latent draws are seeded from ``seed`` and ``k``), given its Algorithm-1
+    ``completion`` (best completion (1, 16), its log-density (1,)); None when nothing is seen."""
     seen = np.isfinite(y)
     outside = reference.outside(y)
     for n in outside:
@@ -235,7 +241,7 @@ def _invert_row(pid, y: np.ndarray, k: int, flow, encdec, emulator, reference: _
     if not seen.any():
         warn(pid, "not inverted: no output given")
         return _not_inverted(pid, "no output given", outside)
-    best, lp = inversion.complete_missing(flow, y, n_flow_samples, top_k=1, seed=seed + 7919 * k)
+    best, lp = completion
     if not np.isfinite(lp[0]) or not np.isfinite(best).all():
         why = f"no finite completion under the flow among {n_flow_samples} samples"
         warn(pid, f"not inverted: {why}")

@@ -37,11 +37,13 @@ include: "workflow/rules/published.smk"
 include: "workflow/rules/scorecard.smk"
 include: "workflow/rules/calibration.smk"
 include: "workflow/rules/references.smk"
+include: "workflow/rules/seeds.smk"
 
 
 localrules:
     all,
     calibration,
+    seeds,
     download_ehr,
     fetch_published_networks,
 

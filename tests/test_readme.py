@@ -136,7 +136,7 @@ def planned_jobs() -> dict[str, dict[str, set[str]]]:
     (local.parent / "readme_networks").mkdir(exist_ok=True)
     local.write_text(yaml.safe_dump({"networks": {"published": {"path": str(local.parent / "readme_networks")}}}))
     for extra in ((), ("config/published.yaml", str(local))):
-        proc = snakemake("-n", "--forceall", "all", "calibration", "--configfile", "config/config.yaml", *extra)
+        proc = snakemake("-n", "--forceall", "all", "calibration", "seeds", "--configfile", "config/config.yaml", *extra)
         assert proc.returncode == 0, proc.stderr[-2000:]
         rule = None
         for line in proc.stdout.splitlines():

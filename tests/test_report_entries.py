@@ -2,7 +2,7 @@
 categories numbered by paper section with the scorecard first; every caption file is used.
 
 The report is built from a copy of the workflow whose outputs are empty placeholders, one per
-output of a forced dry run of the targets ``all`` and ``calibration``: Snakemake itself then
+output of a forced dry run of the targets ``all``, ``calibration`` and ``seeds``: Snakemake itself then
 reads the ``report()`` flags, expands the categories and renders the captions, and no job runs
 (about 10 s per network source on 2 cores).
 """
@@ -16,13 +16,15 @@ import pytest
 
 from conftest import ROOT, copy_workflow, snakemake
 
-TARGETS = ("all", "calibration")
+TARGETS = ("all", "calibration", "seeds")
 #: Network source -> the config arguments that select it (the default config trains them).
 SOURCES = {"trained": (), "published": ("--configfile", "config/config.yaml", "config/published.yaml")}
 #: Folders whose CSV files are tables: the Markdown file of the same name is the report's entry.
 #: Other CSV files hold the data behind a figure.
 TABLE_FOLDERS = {"tables", "report"}
 SCORECARD = "results/report/reproduction.md"
+#: Beside the scorecard: the spread of its headlines over seeds (target ``seeds``).
+SPREAD_OVER_SEEDS = ["results/report/seeds.md", "results/report/seeds_best_delta.md"]
 PUBLISHED_MARK = ", published networks"
 CAPTION = re.compile(r'caption="\.\./report/([^"]+)"')
 
@@ -100,7 +102,7 @@ def test_categories_are_numbered_with_the_scorecard_first(built):
     assert all(re.match(r"[1-9] \S", name) for name in names), names
     assert names[0] == "1 Reproduction scorecard", names
     first = [p for paths in categories[names[0]].values() for p in paths]
-    assert first == [SCORECARD]
+    assert first == [SCORECARD, *SPREAD_OVER_SEEDS]
     # every report entry sits in exactly one (category, subcategory)
     placed = [p for subs in categories.values() for paths in subs.values() for p in paths]
     assert sorted(placed) == sorted(built["results"])

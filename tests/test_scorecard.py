@@ -88,7 +88,7 @@ def test_resampled_manifold_headline_is_a_row_of_its_own(tmp_path):
     assert values["manifold_l2_resampled"] == pytest.approx(200 * h["max_rel_error_manifold"])
     row = next(r for r in rows if r.key == "manifold_l2_resampled")
     assert "2,000 random sets of 100 of 5,000 draws" in row.label
-    assert scorecard._ratio(values[row.key], row) == pytest.approx(2.0)
+    assert scorecard.ratio_to_paper(values[row.key], row) == pytest.approx(2.0)
     assert len(rows) == 23
 
 

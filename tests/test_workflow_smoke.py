@@ -355,3 +355,64 @@ def test_editing_a_figure_module_replans_its_figures_only(trained_run, module):
     planned.pop("all", None)
     planned.pop("calibration", None)
     assert planned and set(planned) <= drawing, sorted(set(planned) - drawing)
+
+
+@needs_local_ehr
+def test_seeds_target_trains_each_seed_on_the_shared_data(trained_run):
+    """Target ``seeds`` (smoke config: seeds 0, the default, and 1): seed 1's networks train into
+    results/seeds/1/ on the data of ``all``, which stays as it was; the spread's values per seed are
+    the scorecard's of each seed's files; afterwards ``all`` reruns only the scorecard, which then
+    shows the spread beside the default seed's ratio."""
+    from cvsim6.reporting import scorecard as sc
+
+    work = trained_run
+    data = {p: digest(p) for p in sorted((work / "results/data").rglob("*.parquet"))}
+    default_model = work / "results/models/ehr/encoder_decoder_delta0.5.pt"
+    before = digest(default_model)
+    proc = snakemake("--cores", "2", "seeds", *SMOKE, cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    seed1 = work / "results/seeds/1"
+    # the data and the default seed's networks are shared, not redone
+    assert {p: digest(p) for p in data} == data and digest(default_model) == before
+    assert not (seed1 / "data").exists() and not list((work / "results/seeds").glob("0"))
+    # seed 1's networks: trained with seed 1, other weights than seed 0's
+    ed1, info = networks.load_model(seed1 / "models/ehr/encoder_decoder_delta0.5.pt", with_info=True)
+    ed0 = networks.load_model(default_model)
+    assert info["seed"] == 1 and networks.load_model(default_model, with_info=True)[1]["seed"] == 0
+    w0, w1 = (dict(m.state_dict()) for m in (ed0, ed1))
+    assert w0.keys() == w1.keys() and any(not np.array_equal(w0[k], w1[k]) for k in w0)
+    assert (work / "logs/seeds/1/train_emulator/ehr.log").is_file()
+    # per seed, the values of the scorecard of that seed's files
+    roots = {0: work / "results", 1: seed1}
+    table = pd.read_csv(work / "results/report/seeds.csv").set_index("key")
+    for seed, root in roots.items():
+        files = {k: str(root / p) for k, p in HEADLINES_UNDER_ROOT.items()}
+        files["stiffness"] = str(work / "results/stiffness/sr_extremes.csv")
+        values, _ = sc.headline_values(files)
+        for key in table.index:
+            assert table.loc[key, f"seed {seed}"] == pytest.approx(values[key], rel=1e-12, nan_ok=True), key
+    pair = table[["seed 0", "seed 1"]].to_numpy(float)
+    np.testing.assert_allclose(table["min"], np.nanmin(pair, axis=1))
+    np.testing.assert_allclose(table["max"], np.nanmax(pair, axis=1))
+    # `all` afterwards: only the scorecard reruns, and shows the spread
+    dry = snakemake("-n", "all", *SMOKE, cwd=work)
+    assert set(planned_rules(dry.stdout + dry.stderr)) <= {"reproduction_scorecard", "all"}, dry.stdout[-2000:]
+    proc = snakemake("--cores", "2", "all", *SMOKE, cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    card = pd.read_csv(work / "results/report/reproduction.csv").set_index("Headline")
+    spread = pd.read_csv(work / "results/report/seeds.csv").set_index("Headline")
+    for stat in ("min", "median", "max"):
+        pd.testing.assert_series_equal(card.loc[spread.index, f"trained {stat} over seeds / paper"],
+                                       spread[f"{stat} / paper"], check_names=False)
+
+
+#: The scorecard's files under a network results root (as headline_files in common.smk).
+HEADLINES_UNDER_ROOT = {
+    "structural_emulator": "tables/structural_emulator_validation.csv",
+    "structural_inversion": "tables/structural_inversion_errors.csv",
+    "manifold": "tables/structural_manifold_reconstruction.json",
+    "svd": "structural/manifold_svd.json",
+    "missing": "tables/structural_missing_data.json",
+    "ehr_emulator": "training/ehr/emulator_l2_errors.json",
+    "ehr_errors": "tables/ehr_error_per_output.csv",
+}

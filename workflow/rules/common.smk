@@ -2,6 +2,7 @@
 # each step depends on. Only constants and functions here, no rules.
 
 import importlib.util
+from pathlib import Path
 
 #: Everything the workflow produces (git-ignored except results/README.md).
 RESULTS = "results"
@@ -13,6 +14,9 @@ LOGS = "logs"
 BENCHMARKS = f"{LOGS}/benchmarks"
 #: The installed package whose functions the rules call.
 PACKAGE_DIR = "src/cvsim6"
+
+#: The spread over seeds (target `seeds`), which the scorecard of `all` shows when it exists.
+SEED_SCORECARD = f"{RESULTS}/report/seeds.csv"
 
 #: Where the inVAErt networks come from: 'trained' by this workflow or 'published' (the paper's).
 NETWORK_SOURCE = config["networks"]["source"]
@@ -68,12 +72,17 @@ def attach_code_inputs():
     param, the one place it is named): the source files of that function's import closure.
     A change of the code that produces an output then reruns that step and no other
     (Snakemake compares checksums of small inputs); call.py does not pass ``code`` on.
-    Called once at the end of the Snakefile, after all steps are defined."""
+    Called once at the end of the Snakefile, after all steps are defined, the steps of the
+    seed modules (seeds.smk) included; their copies of the Snakefile skip it. Each step keeps
+    the path modifier of its own module (a step without inputs gets the workflow's)."""
+    if not workflow.modifier.is_main_snakefile():
+        return
     for each in workflow.rules:
         function = dict(each.params.items()).get("function")
         if function is not None:
-            # what Snakemake's own `input:` directive sets before adding files
-            each.input_modifier = workflow.modifier.path_modifier
+            if each.input_modifier is None:
+                # what Snakemake's own `input:` directive sets before adding files
+                each.input_modifier = workflow.modifier.path_modifier
             each.set_input(code=code_for(function))
 
 
@@ -144,9 +153,9 @@ def published_dir(wildcards=None):
     return config["networks"]["published"]["path"] or "resources/paper_networks"
 
 
-def scorecard_files(source):
-    """The workflow outputs the scorecard reads for one network source (cvsim6.reporting.scorecard.HEADLINE_FILES)."""
-    root = NETWORK_RESULTS[source]
+def headline_files(root):
+    """The workflow outputs under the network results ``root`` that the scorecard reads
+    (cvsim6.reporting.scorecard.HEADLINE_FILES); the stiffness analysis is shared."""
     return dict(
         stiffness=f"{RESULTS}/stiffness/sr_extremes.csv",
         structural_emulator=f"{root}/tables/structural_emulator_validation.csv",
@@ -157,6 +166,18 @@ def scorecard_files(source):
         ehr_emulator=f"{root}/training/ehr/emulator_l2_errors.json",
         ehr_errors=f"{root}/tables/ehr_error_per_output.csv",
     )
+
+
+def scorecard_files(source):
+    """The headline files of one network source ('trained' or 'published')."""
+    return headline_files(NETWORK_RESULTS[source])
+
+
+def optional_text(path):
+    """The text of ``path`` if it exists, else None. Passed as a param, the text of an output
+    of another target reruns the step when it appears or changes, without making that target
+    part of this one's (e.g. the spread over seeds in the scorecard of `all`)."""
+    return Path(path).read_text() if Path(path).is_file() else None
 
 
 def calibration_figure_delta():
@@ -184,3 +205,37 @@ def invaert_training_losses(wildcards=None):
         f"{RESULTS}/training/ehr/encoder_decoder_delta{d}_losses.csv"
         for d in noise_tags("ehr")
     ]
+
+
+def seed_root(seed):
+    """Results root of the networks of ``seed``: results/ for the default seed of a trained run."""
+    if seed == config["seed"] and NETWORK_SOURCE == "trained":
+        return RESULTS
+    return f"{RESULTS}/seeds/{seed}"
+
+
+def seed_config(seed):
+    """The config of ``seed``'s module: this run's, with that seed and trained networks."""
+    return {
+        **config,
+        "seed": seed,
+        "networks": {**config["networks"], "source": "trained"},
+    }
+
+
+def seed_paths(seed):
+    """Path prefixes moved under ``seed``'s root (everything network-dependent, and the logs)."""
+    root = seed_root(seed)
+    moved = ["models/", "training/", "tables/", "structural/", "ehr/predictions"]
+    paths = {f"{RESULTS}/{p}": f"{root}/{p}" for p in moved}
+    paths[f"{LOGS}/"] = f"{LOGS}/seeds/{seed}/"
+    return paths
+
+
+def seed_headline_files(wildcards=None):
+    """The headline files of every seed, as named inputs ``seed<seed>_<headline>``."""
+    return {
+        f"seed{seed}_{key}": path
+        for seed in config["seeds"]
+        for key, path in headline_files(seed_root(seed)).items()
+    }

@@ -28,5 +28,6 @@ rule reproduction_scorecard:
         other_sources={
             s: scorecard_files(s) for s in NETWORK_RESULTS if s != NETWORK_SOURCE
         },
+        seed_spread=optional_text(SEED_SCORECARD),
     script:
         "../scripts/call.py"

@@ -12,6 +12,7 @@ paper's entry is 1. A headline is "within x" when ``max(r, 1/r) <= x``.
 """
 from __future__ import annotations
 
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -140,13 +141,15 @@ def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headl
     return values, rows
 
 
-def _ratio(value: float, h: Headline) -> float:
+def ratio_to_paper(value: float, h: Headline) -> float:
+    """``value / paper`` of headline ``h`` (``value`` itself for a row that is a ratio already)."""
     if h.is_ratio:
         return value
     return value / h.paper if h.paper != 0 else math.nan
 
 
-def _fmt(x: float) -> str:
+def fmt(x: float) -> str:
+    """A value as printed in the scorecard: integers whole, else three significant digits."""
     if not math.isfinite(x):
         return ""
     if float(x).is_integer() and abs(x) < 1e6:
@@ -165,12 +168,12 @@ def scorecard_table(sources: dict[str, dict[str, str]]) -> pd.DataFrame:
                 order.append(h.key)
             r = table[h.key]
             r[f"{source}"] = values[h.key]
-            r[f"{source} / paper"] = _ratio(values[h.key], h)
+            r[f"{source} / paper"] = ratio_to_paper(values[h.key], h)
             r[f"{source} file"] = h.file
     return pd.DataFrame([table[k] for k in order])
 
 
-def _within(ratios: pd.Series, tol: float) -> tuple[int, int]:
+def within(ratios: pd.Series, tol: float) -> tuple[int, int]:
     """(rows with max(r, 1/r) <= tol, rows with a ratio)."""
     r = ratios.astype(float)
     r = r[np.isfinite(r) & (r > 0)]
@@ -194,9 +197,32 @@ def ek_per_output(sources: dict[str, dict[str, str]]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def write_scorecard(csv: str, md: str, source: str, other_sources: dict[str, dict[str, str]], **files: str) -> None:
+def read_spread(text: str | None) -> pd.DataFrame | None:
+    """The spread over seeds from the text of ``seeds.csv`` (None for None or empty text)."""
+    if not text:
+        return None
+    return pd.read_csv(io.StringIO(text))
+
+
+def add_seed_spread(table: pd.DataFrame, spread: pd.DataFrame, source: str) -> pd.DataFrame:
+    """``table`` with the ratios to the paper of the minimum, median and maximum over seeds of
+    ``source``'s networks (rows of ``seeds.csv``, matched by headline), after its own ratio."""
+    by_label = spread.set_index("Headline")
+    out = table.copy()
+    at = list(out.columns).index(f"{source} / paper") + 1
+    for i, stat in enumerate(("min", "median", "max")):
+        col = f"{source} {stat} over seeds / paper"
+        out.insert(at + i, col, [by_label[f"{stat} / paper"].get(h, math.nan) for h in out["Headline"]])
+    return out
+
+
+def write_scorecard(csv: str, md: str, source: str, other_sources: dict[str, dict[str, str]],
+                    seed_spread: str | None = None, **files: str) -> None:
     """Workflow step: the scorecard of ``source`` (its headline files as keyword arguments,
-    :data:`HEADLINE_FILES`) and of each other source whose files all exist, side by side."""
+    :data:`HEADLINE_FILES`) and of each other source whose files all exist, side by side.
+    ``seed_spread``, the text of the spread over seeds (``seeds.csv`` of
+    :mod:`cvsim6.reporting.seed_scorecard`), adds the trained networks' minimum, median and
+    maximum ratios over the seeds beside the default seed's."""
     missing = [k for k in HEADLINE_FILES if k not in files]
     if missing:
         raise ValueError(f"headline files missing for {source!r}: {missing}")
@@ -209,6 +235,9 @@ def write_scorecard(csv: str, md: str, source: str, other_sources: dict[str, dic
             skipped.append(name)
     sources = dict(sorted(sources.items(), key=lambda kv: kv[0] != "trained"))  # trained first
     table = scorecard_table(sources)
+    spread = read_spread(seed_spread) if source == "trained" else None
+    if spread is not None:
+        table = add_seed_spread(table, spread, source)
     Path(csv).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(csv, index=False)
     lines = ["# Reproduction scorecard", "",
@@ -219,24 +248,30 @@ def write_scorecard(csv: str, md: str, source: str, other_sources: dict[str, dic
              "rows marked *ours/paper* hold that ratio already (geometric mean over the outputs of a table, "
              "the paper's entry is 1).", ""]
     for s in sources:
-        counts = ["{} of {} within {:g}x".format(*_within(table[f"{s} / paper"], tol), tol) for tol in TOLERANCES]
+        counts = ["{} of {} within {:g}x".format(*within(table[f"{s} / paper"], tol), tol) for tol in TOLERANCES]
         lines.append(f"- **{s}**: " + ", ".join(counts) + ".")
+    if spread is not None:
+        seeds = [c.split()[1] for c in spread.columns if c.startswith("seed ")]
+        lines.append(f"- **{source} over seeds** {', '.join(seeds)} (`snakemake seeds`, details in "
+                     "`results/report/seeds.md`): the minimum, median and maximum of each ratio.")
     if skipped:
         lines.append(f"- not built yet, so not shown: {', '.join(skipped)} "
                      "(run the workflow with that source, then rebuild this file).")
     lines.append("")
-    shown = table[["Headline", "Paper"] + [c for s in sources for c in (s, f"{s} / paper")] + ["Paper section"]]
+    spread_cols = [c for c in table.columns if " over seeds / paper" in c]
+    shown = table[["Headline", "Paper"] + [c for s in sources for c in (s, f"{s} / paper")] + spread_cols
+                  + ["Paper section"]]
     shown = shown.copy()
     for c in shown.columns:
         if c not in ("Headline", "Paper section"):
-            shown[c] = [_fmt(v) for v in shown[c]]
+            shown[c] = [fmt(v) for v in shown[c]]
     lines.append(to_markdown(shown))
     lines += ["", "Files: " + "; ".join(f"`{s}`: `{Path(f['ehr_errors']).parent.parent}/`" for s, f in sources.items()),
               ""]
     ek = ek_per_output(sources)
     ek_shown = ek.copy()
     for c in ek_shown.columns[1:]:
-        ek_shown[c] = [_fmt(v) for v in ek_shown[c]]
+        ek_shown[c] = [fmt(v) for v in ek_shown[c]]
     lines.append(to_markdown(ek_shown, caption="EHR e_k per output and noise level delta (table 5), "
                                                "outputs observed in more than 10 patients"))
     Path(md).write_text("\n".join(lines), encoding="utf-8")

@@ -15,6 +15,13 @@ BENCHMARKS = f"{LOGS}/benchmarks"
 #: The installed package whose functions the rules call.
 PACKAGE_DIR = "src/cvsim6"
 
+#: Root of the networks this copy of the Snakefile trains: results/, or results/seeds/<seed>/ in
+#: a seed module (seeds.smk), whose outputs Snakemake moves there but whose params it does not.
+TRAINED_ROOT = (
+    RESULTS
+    if workflow.modifier.is_main_snakefile()
+    else f"{RESULTS}/seeds/{config['seed']}"
+)
 #: The spread over seeds (target `seeds`), which the scorecard of `all` shows when it exists.
 SEED_SCORECARD = f"{RESULTS}/report/seeds.csv"
 

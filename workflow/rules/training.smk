@@ -128,7 +128,7 @@ rule train_encoder_decoder_candidate:
     params:
         function="cvsim6.training.train:train_encoder_decoder",
         candidate=lambda w: int(w.candidate),
-        model=lambda w, output: output.checkpoint.split(".ckpt.candidate")[0],
+        model=lambda w: f"{TRAINED_ROOT}/models/{w.study}/encoder_decoder_delta{w.delta}.pt",
         hyper=lambda w: config["training"]["studies"][w.study]["encoder_decoder"],
         noise_level=lambda w: float(w.delta),
         seed=config["seed"],

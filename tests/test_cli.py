@@ -435,3 +435,43 @@ def test_invert_equals_the_library_inversion(tmp_path, ehr_models, reference, ca
     np.testing.assert_allclose(got[numbers].to_numpy(float), lib[numbers].to_numpy(float), rtol=1e-7, atol=0)
     assert (lib["ood_reference_size"] == 40).all()
     assert lib.groupby("id")["ood_percentile"].nunique().eq(1).all()
+
+
+def test_simulate_warns_of_outputs_outside_their_physiological_range(tmp_path, default_params, capsys):
+    """A compliance in CGS units (C_a = 0.0012 instead of 1.6 mL/mmHg) is simulated all the same,
+    exit code 0, with a warning naming the row and each output outside its range."""
+    P = np.repeat(default_params[None], 3, axis=0)
+    P[1, registry.PARAMETER_INDEX["C_a"]] = 0.0012
+    src = tmp_path / "params.csv"
+    pd.DataFrame(P, columns=registry.PARAMETER_NAMES).to_csv(src, index=False, float_format="%.17g")
+    out = tmp_path / "out.csv"
+    assert cli.main(["simulate", str(src), "-o", str(out)]) == 0
+    got = pd.read_csv(out)
+    assert (got["status"] == "ok").all()
+    low, high = registry.PHYSIOLOGICAL_RANGE["P_a_dia"]
+    assert not low <= got.loc[1, "P_a_dia"] <= high  # a stiff aorta: the diastolic pressure falls
+    outside = [n for n, (lo, hi) in registry.PHYSIOLOGICAL_RANGE.items() if not lo <= got.loc[1, n] <= hi]
+    assert all(lo <= got.loc[r, n] <= hi for r in (0, 2) for n, (lo, hi) in registry.PHYSIOLOGICAL_RANGE.items())
+    err = capsys.readouterr().err.splitlines()
+    warnings = [line for line in err if line.startswith("warning:")]
+    assert warnings == [f"warning: {src}: line 3: {n} = {got.loc[1, n]:.4g} outside its physiological range "
+                        f"{registry.PHYSIOLOGICAL_RANGE[n][0]:g} to {registry.PHYSIOLOGICAL_RANGE[n][1]:g} "
+                        "(parameters in clinical units?)" for n in outside]
+
+
+def test_range_warnings_beyond_the_limit_are_counted_per_output(capsys):
+    """Past the first ``limit`` warnings one line counts the rest per output, most frequent first."""
+    n = 30
+    result = pd.DataFrame({name: np.full(n, 0.5 * (lo + hi)) for name, (lo, hi) in registry.PHYSIOLOGICAL_RANGE.items()})
+    result["status"] = "ok"
+    result.loc[:, "CO"] = 50.0  # all 30 rows
+    result.loc[:9, "Hr"] = 10.0  # rows 0-9
+    result.loc[29, "status"] = "flagged"  # left to the status column
+    cli._warn_unphysiological(result, "in.csv", np.arange(2, n + 2), limit=5)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 6
+    # in row order (registry order within a row): row 0's Hr and CO, row 1's, then row 2's Hr
+    assert [line.split(": ", 2)[2].split(" = ")[0] for line in err[:5]] == [
+        "line 2: Hr", "line 2: CO", "line 3: Hr", "line 3: CO", "line 4: Hr"]
+    # 29 CO + 10 Hr = 39 found, 5 shown (3 Hr, 2 CO): 34 more, CO 27, Hr 7
+    assert err[5] == "warning: in.csv: 34 more output(s) outside their physiological range (CO 27, Hr 7)"

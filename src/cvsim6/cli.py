@@ -213,19 +213,24 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _warn_unphysiological(result: pd.DataFrame, path: str, lines: np.ndarray, limit: int = 20) -> None:
-    """A ``warning:`` line on stderr per simulated output outside its physiological range
-    (at most ``limit``, then a count); rows flagged in ``status`` are left to that column."""
+    """A ``warning:`` line on stderr per simulated output outside its physiological range, in row
+    order (at most ``limit``, then one line counting the rest per output, most frequent first);
+    rows flagged in ``status`` are left to that column."""
     found = []
     ok = (result["status"] == "ok").to_numpy()
     for name, (low, high) in PHYSIOLOGICAL_RANGE.items():
         values = result[name].to_numpy(float)
         for i in np.flatnonzero(ok & ((values < low) | (values > high))):
-            found.append((i, f"{name} = {values[i]:.4g} outside its physiological range {low:g} to {high:g}"))
-    for i, message in sorted(found, key=lambda item: item[0])[:limit]:
+            found.append((i, name, f"{name} = {values[i]:.4g} outside its physiological range {low:g} to {high:g}"))
+    found.sort(key=lambda item: item[0])
+    for i, _, message in found[:limit]:
         print(f"warning: {path}: line {lines[i]}: {message} (parameters in clinical units?)", file=sys.stderr)
-    if len(found) > limit:
-        print(f"warning: {path}: {len(found) - limit} more output(s) outside their physiological range",
-              file=sys.stderr)
+    rest = pd.Series([name for _, name, _ in found[limit:]], dtype=object).value_counts(sort=False)
+    if len(rest):
+        rest = rest.sort_values(ascending=False, kind="stable")
+        per_output = ", ".join(f"{name} {count:,}" for name, count in rest.items())
+        print(f"warning: {path}: {len(found) - limit:,} more output(s) outside their physiological range "
+              f"({per_output})", file=sys.stderr)
 
 
 def _invert(args: argparse.Namespace) -> int:

@@ -165,3 +165,26 @@ def test_emulator_errors_appendix_c_ratios_are_the_scorecards_geometric_means():
     assert r["appendix_c_max_x"] == pytest.approx(3.0)
     mean_ratio = 1.5 * np.asarray(paper["max"]) / np.asarray(paper["mean"])  # mean of |e| over the two rows
     assert r["appendix_c_mean_x"] == pytest.approx(np.exp(np.log(mean_ratio).mean()))
+
+
+def test_mcmc_walkers_splits_the_budget_and_counts_parameters_short_of_the_targets(tmp_path):
+    mw = _load("mcmc_walkers")
+    assert [mw.steps_for(672000, w) for w in (48, 96, 192)] == [14000, 7000, 3500]  # equal walker-steps
+    assert mw.steps_for(1000, 96) == 10
+    with pytest.raises(ValueError, match="only 3 steps"):
+        mw.steps_for(300, 96)
+    diag = {"rhat": np.array([1.01, 1.06, np.inf, 1.05]), "ess_bulk": np.array([900.0, 350.0, 10.0, 500.0]),
+            "ess_tail": np.array([420.0, 800.0, 12.0, 399.0])}
+    s = mw.summarise(diag, 1.05, 400.0)
+    assert s["rhat_max"] == np.inf and s["ess_min"] == 10.0  # min of bulk and tail over the parameters
+    assert s["n_rhat_over"] == 2 and s["n_ess_under"] == 3 and not s["converged"]  # R-hat 1.05 meets the target
+    assert mw.summarise({k: v[:1] for k, v in diag.items()})["converged"]
+    table = pd.DataFrame({"case": ["a", "a", "b", "c"], "walkers": [48, 96, 48, 96],
+                          "ess_min_per_cpu_s": [2.0, 3.0, 4.0, 1.0]})
+    ratio = mw.add_baseline_ratios(table, 48)["ess_per_cpu_vs_baseline"]
+    assert ratio.iloc[:3].tolist() == [1.0, 1.5, 1.0] and np.isnan(ratio.iloc[3])  # c has no baseline row
+    pd.DataFrame({"case": ["a", "b"], "rhat_max": [1.2, 1.01], "ess_min": [66.0, 900.0]}).to_csv(tmp_path / "d.csv")
+    wf = mw.add_workflow_diagnostics(table, tmp_path / "d.csv", 48)
+    assert wf["workflow_ess_min"].iloc[[0, 2]].tolist() == [66.0, 900.0]  # on the baseline rows only
+    assert wf["workflow_rhat_max"].iloc[[1, 3]].isna().all()
+    assert mw.add_workflow_diagnostics(table, None, 48)["workflow_rhat_max"].isna().all()

@@ -15,12 +15,14 @@ BENCHMARKS = f"{LOGS}/benchmarks"
 #: The installed package whose functions the rules call.
 PACKAGE_DIR = "src/cvsim6"
 
+#: Where target `seeds` puts the network results of each extra seed (results/seeds/<seed>/).
+SEEDS_RESULTS = f"{RESULTS}/seeds"
 #: Root of the networks this copy of the Snakefile trains: results/, or results/seeds/<seed>/ in
 #: a seed module (seeds.smk), whose outputs Snakemake moves there but whose params it does not.
 TRAINED_ROOT = (
     RESULTS
     if workflow.modifier.is_main_snakefile()
-    else f"{RESULTS}/seeds/{config['seed']}"
+    else f"{SEEDS_RESULTS}/{config['seed']}"
 )
 #: The spread over seeds (target `seeds`), which the scorecard of `all` shows when it exists.
 SEED_SCORECARD = f"{RESULTS}/report/seeds.csv"
@@ -218,7 +220,7 @@ def seed_root(seed):
     """Results root of the networks of ``seed``: results/ for the default seed of a trained run."""
     if seed == config["seed"] and NETWORK_SOURCE == "trained":
         return RESULTS
-    return f"{RESULTS}/seeds/{seed}"
+    return f"{SEEDS_RESULTS}/{seed}"
 
 
 def seed_config(seed):

@@ -68,18 +68,28 @@ def ek_outputs(ehr_errors: pd.DataFrame) -> list[str]:
             if counts.get(n, 0) > MIN_PATIENTS_EXCLUSIVE and paper_values.EHR_EK[n][0] is not None]
 
 
-def best_delta_agreement(ehr_errors: pd.DataFrame, outputs: list[str]) -> int:
-    """Number of ``outputs`` whose lowest e_k is at the same noise level as the paper's."""
+def best_delta(ehr_errors: pd.DataFrame, outputs: list[str]) -> list[float]:
+    """Noise level delta of the lowest e_k of each of ``outputs`` (NaN where none is finite, or
+    the table lacks a noise level of the paper's)."""
     t = ehr_errors.set_index("Output")
     cols = [f"delta={d:g}" for d in paper_values.EHR_DELTAS]
     if not set(cols) <= set(t.columns):
-        return 0
-    agree = 0
+        return [math.nan] * len(outputs)
+    best = []
     for n in outputs:
-        ours = t.loc[n, cols].to_numpy(float)
-        if np.isfinite(ours).any() and int(np.nanargmin(ours)) == int(np.argmin(paper_values.EHR_EK[n])):
-            agree += 1
-    return agree
+        ek = t.loc[n, cols].to_numpy(float)
+        best.append(paper_values.EHR_DELTAS[int(np.nanargmin(ek))] if np.isfinite(ek).any() else math.nan)
+    return best
+
+
+def paper_best_delta(outputs: list[str]) -> list[float]:
+    """The paper's noise level delta of the lowest e_k of each of ``outputs`` (table 5)."""
+    return [paper_values.EHR_DELTAS[int(np.argmin(paper_values.EHR_EK[n]))] for n in outputs]
+
+
+def best_delta_agreement(ehr_errors: pd.DataFrame, outputs: list[str]) -> int:
+    """Number of ``outputs`` whose lowest e_k is at the same noise level as the paper's."""
+    return sum(ours == paper for ours, paper in zip(best_delta(ehr_errors, outputs), paper_best_delta(outputs)))
 
 
 def headline_values(files: dict[str, str]) -> tuple[dict[str, float], list[Headline]]:
@@ -173,6 +183,15 @@ def scorecard_table(sources: dict[str, dict[str, str]]) -> pd.DataFrame:
     return pd.DataFrame([table[k] for k in order])
 
 
+def formatted(table: pd.DataFrame, text_columns: tuple[str, ...] = ()) -> pd.DataFrame:
+    """A copy of ``table`` with every column but ``text_columns`` written as :func:`fmt` prints it."""
+    shown = table.copy()
+    for c in shown.columns:
+        if c not in text_columns:
+            shown[c] = [fmt(v) for v in shown[c]]
+    return shown
+
+
 def within(ratios: pd.Series, tol: float) -> tuple[int, int]:
     """(rows with max(r, 1/r) <= tol, rows with a ratio)."""
     r = ratios.astype(float)
@@ -259,19 +278,13 @@ def write_scorecard(csv: str, md: str, source: str, other_sources: dict[str, dic
                      "(run the workflow with that source, then rebuild this file).")
     lines.append("")
     spread_cols = [c for c in table.columns if " over seeds / paper" in c]
-    shown = table[["Headline", "Paper"] + [c for s in sources for c in (s, f"{s} / paper")] + spread_cols
-                  + ["Paper section"]]
-    shown = shown.copy()
-    for c in shown.columns:
-        if c not in ("Headline", "Paper section"):
-            shown[c] = [fmt(v) for v in shown[c]]
+    shown = formatted(table[["Headline", "Paper"] + [c for s in sources for c in (s, f"{s} / paper")]
+                            + spread_cols + ["Paper section"]], ("Headline", "Paper section"))
     lines.append(to_markdown(shown))
     lines += ["", "Files: " + "; ".join(f"`{s}`: `{Path(f['ehr_errors']).parent.parent}/`" for s, f in sources.items()),
               ""]
     ek = ek_per_output(sources)
-    ek_shown = ek.copy()
-    for c in ek_shown.columns[1:]:
-        ek_shown[c] = [fmt(v) for v in ek_shown[c]]
+    ek_shown = formatted(ek, ("Output",))
     lines.append(to_markdown(ek_shown, caption="EHR e_k per output and noise level delta (table 5), "
                                                "outputs observed in more than 10 patients"))
     Path(md).write_text("\n".join(lines), encoding="utf-8")

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cvsim6 import paper_values
 from cvsim6.reporting import scorecard as sc
 from cvsim6.table_files import to_markdown
 
@@ -87,17 +86,6 @@ def _goal(key: str, h: sc.Headline, row: dict) -> dict:
     return {"bar / paper": np.nan, "every seed meets the bar": None}
 
 
-def _best_delta(ehr_errors: pd.DataFrame, outputs: list[str]) -> list[float]:
-    """Noise level of the lowest e_k of each of ``outputs`` (NaN where none is finite)."""
-    t = ehr_errors.set_index("Output")
-    cols = [f"delta={d:g}" for d in paper_values.EHR_DELTAS]
-    best = []
-    for n in outputs:
-        ek = t.loc[n, cols].to_numpy(float) if set(cols) <= set(t.columns) else np.full(len(cols), np.nan)
-        best.append(paper_values.EHR_DELTAS[int(np.nanargmin(ek))] if np.isfinite(ek).any() else np.nan)
-    return best
-
-
 def best_delta_table(by_seed: dict[int, dict[str, str]], published: dict[str, str] | None = None) -> pd.DataFrame:
     """Per output of table 5 seen in more than 10 patients: the noise level of the lowest e_k for
     the paper, each seed and (when given) the published networks."""
@@ -105,21 +93,19 @@ def best_delta_table(by_seed: dict[int, dict[str, str]], published: dict[str, st
     if published:
         tables["published"] = pd.read_csv(published["ehr_errors"])
     outputs = sc.ek_outputs(next(iter(tables.values())))
-    out = pd.DataFrame({"Output": outputs,
-                        "paper": [paper_values.EHR_DELTAS[int(np.argmin(paper_values.EHR_EK[n]))] for n in outputs]})
+    out = pd.DataFrame({"Output": outputs, "paper": sc.paper_best_delta(outputs)})
     for name, t in tables.items():
-        out[name] = _best_delta(t, outputs)
+        out[name] = sc.best_delta(t, outputs)
     return out
 
 
 def _shown(table: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
+    """``columns`` of ``table`` as printed: the goal's yes/no, the rest as the scorecard prints them."""
     shown = table[columns].copy()
-    for c in columns:
-        if c == "every seed meets the bar":
-            shown[c] = [{True: "yes", False: "no"}.get(v, "") for v in shown[c]]
-        elif c not in ("Headline", "Paper section", "Output"):
-            shown[c] = [sc.fmt(v) for v in shown[c]]
-    return shown
+    goal = "every seed meets the bar"
+    if goal in shown:
+        shown[goal] = [{True: "yes", False: "no"}.get(v, "") for v in shown[goal]]
+    return sc.formatted(shown, ("Headline", "Paper section", "Output", goal))
 
 
 def write_seed_scorecard(csv: str, md: str, best_delta_csv: str, best_delta_md: str, seeds: list[int],

@@ -188,3 +188,18 @@ def test_mcmc_walkers_splits_the_budget_and_counts_parameters_short_of_the_targe
     assert wf["workflow_ess_min"].iloc[[0, 2]].tolist() == [66.0, 900.0]  # on the baseline rows only
     assert wf["workflow_rhat_max"].iloc[[1, 3]].isna().all()
     assert mw.add_workflow_diagnostics(table, None, 48)["workflow_rhat_max"].isna().all()
+
+
+def test_restart_basins_reads_candidate_ranges_and_counts_used_latent_dimensions():
+    rb = _load("restart_basins")
+    assert rb.parse_candidates("0-8") == list(range(9))
+    assert rb.parse_candidates("3,5,7") == [3, 5, 7]
+    assert rb.parse_candidates("0-2,6,1") == [0, 1, 2, 6]
+    # 11 directions at 2.5 nats and 8 unused: none overloaded
+    even = np.r_[np.full(11, 2.5), np.full(8, 0.01)]
+    assert rb.latent_usage(even) == {"dims_used": 11, "kl_max_over_median": 1.0}
+    # 9 in use, one carrying twice the median's work; the threshold is strict
+    loaded = np.r_[5.0, np.full(8, 2.5), 0.5, np.zeros(9)]
+    assert rb.latent_usage(loaded) == {"dims_used": 9, "kl_max_over_median": 2.0}
+    none = rb.latent_usage(np.zeros(19))
+    assert none["dims_used"] == 0 and np.isnan(none["kl_max_over_median"])

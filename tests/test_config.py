@@ -119,10 +119,11 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
                 assert (h["lr_schedule"], h["eval_every"], h["keep_best"]) == ("step", 1, False), (study, net)
                 assert h["restarts"] == 1, (study, net)  # one initialization, as the paper
                 assert (h["lr_step"], h["lr_gamma"]) == (own[study][net]["lr_step"], own[study][net]["lr_gamma"])
-                if net == "emulator":  # the paper's plain MSE, every row weighing the same
+                if net == "emulator":  # the paper's plain MSE, every row weighing the same, and its MLP
                     assert h["variance_floor"] is None and h["relative_weight"] == 0, study
-                if net == "encoder_decoder":  # the paper's constant KL weight
-                    assert h["kl_warmup_epochs"] == 0, study
+                    assert not h["linear_skip"] and not h["log_inputs"], study
+                if net == "encoder_decoder":  # the paper's constant KL weight, one initialization
+                    assert h["kl_warmup_epochs"] == 0 and h["restart_target"] is None, study
 
 
 def test_training_hyperparameters_have_one_schema_entry_per_network():

@@ -141,6 +141,14 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
     assert any("1 diverged" in k for k in marks)
     plain = lp.plot_training_losses(csv, str(tmp_path / "p.png"), "emulator", model=str(tmp_path / "plain.pt"))
     assert plain["restart"] is None
+    # screened to a reconstruction target: the legend says the kept one is the best of those that met it
+    screened = record | {"chosen": 2, "target": 0.05, "worst_reconstruction": [0.01, 0.3, 0.02, None]}
+    torch.save({"format": fmt, "info": {"stage": "encoder_decoder", "restart": screened}}, tmp_path / "s.pt")
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (captured.__setitem__("fig", fig), savefig(fig, *a, **k)))
+    lp.plot_training_losses(csv, str(tmp_path / "s.png"), "encoder_decoder_delta0", "structural",
+                            model=str(tmp_path / "s.pt"))
+    labels = [line.get_label() for line in captured["fig"].axes[0].get_lines()]
+    assert "kept: best test loss at epoch 50 of the 2 of 4 with every parameter reconstructed (MSE <= 0.05)" in labels
 
 
 def test_figure_modules_choose_no_backend_and_draw_with_a_display_set(tmp_path):

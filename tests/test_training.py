@@ -11,7 +11,8 @@ import torch
 
 from cvsim6 import nets as nw
 from cvsim6 import seeding
-from cvsim6.training import fingerprint, loop, loss_weights, optimization, restarts
+from cvsim6.data.datasets import load_split
+from cvsim6.training import fingerprint, loop, loss_weights, optimization, restarts, stages
 from cvsim6.training import hyperparameters as hp
 from cvsim6.training import train as tr
 from cvsim6.training.stages import EmulatorStage, EncoderDecoderStage, FlowStage
@@ -586,6 +587,79 @@ def test_restarts_that_tie_continue_candidate_0_exactly_as_a_run_without_them(da
                                   _drop_timing(pd.read_csv(tmp_path / "r" / "m.csv")))
 
 
+def test_choose_candidate_prefers_those_that_meet_the_target():
+    loss = [3.0, 1.0, 2.0, 1.0]
+    assert restarts.choose_candidate(loss, [None] * 4, None) == 1  # lowest loss, ties to the lower index
+    assert restarts.choose_candidate(loss, [0.5, 0.4, 0.01, 0.02], None) == 1  # no target: loss only
+    assert restarts.choose_candidate(loss, [0.5, 0.4, 0.01, 0.02], 0.05) == 3  # lowest loss among 2 and 3
+    assert restarts.choose_candidate(loss, [0.01, 0.4, 0.5, 0.4], 0.05) == 0  # the only one, despite its loss
+    assert restarts.choose_candidate(loss, [0.5, 0.4, 0.3, 0.2], 0.05) == 1  # none meets it: loss among all
+    assert restarts.choose_candidate([math.inf, 2.0], [0.01, 0.5], 0.05) == 0  # inf worst: diverged never meets
+    assert restarts.choose_candidate([math.inf, 2.0], [math.inf, 0.5], 0.05) == 1
+    assert restarts.meets_target([None, 0.05], 0.05) and not restarts.meets_target([0.05], None)
+
+
+def test_reconstruction_errors_of_a_decoder_that_returns_zero_are_the_test_parameters_second_moments(
+        data, emulator, monkeypatch):
+    """Per parameter, the mean over every test row (taken in chunks) of the squared standardized
+    value, computed here by numpy from the parquet file and the fitted scaler."""
+    monkeypatch.setattr(stages, "EVAL_CHUNK", 7)  # 100 test rows: 15 chunks, the last one short
+    v_tr, y_tr = load_split(str(data[0]))
+    v_te, y_te = load_split(str(data[1]))
+    net = nw.EncoderDecoder(latent_dim=7, encoder_hidden=16, encoder_layers=3, decoder_hidden=32, decoder_layers=3)
+    net.x_scaler.fit(v_tr)
+    net.y_scaler.fit(y_tr)
+    emu = nw.load_model(str(emulator[0] / "emulator.pt"))
+    stage = EncoderDecoderStage(net, emu, net.x_scaler.transform(v_tr), net.y_scaler.transform(y_tr),
+                                net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), 0.25,
+                                hp.check_hyper("encoder_decoder", ENCDEC), torch.Generator().manual_seed(0),
+                                torch.device("cpu"))
+    monkeypatch.setattr(net, "decode", lambda y, w: torch.zeros(len(y), 23, dtype=y.dtype))
+    expected = (((v_te - net.x_scaler.mean.double().numpy()) / net.x_scaler.std.double().numpy()) ** 2).mean(axis=0)
+    got = stage.reconstruction_errors().numpy()
+    assert got.shape == (23,)
+    np.testing.assert_allclose(got, expected, rtol=1e-5)
+    assert (got > 0.5).all()  # test rows of the training range: each about its variance
+
+
+_SCREEN = _RESTARTS | {"restart_target": 0.1, "max_restarts": 6}
+
+
+def _screen(data, emulator, d, worst, monkeypatch, hyper=_SCREEN):
+    """A run whose candidate c has worst reconstruction MSE ``worst[c]`` (by design)."""
+    calls = []
+
+    def fake(make_stage, seed, c, path):
+        calls.append(c)
+        assert path.exists()
+        return worst[c]
+
+    monkeypatch.setattr(restarts, "worst_reconstruction", fake)
+    assert _encdec_run(data, emulator, d, hyper)["completed"]
+    return torch.load(d / "m.pt", weights_only=True)["info"]["restart"], calls
+
+
+def test_screening_goes_on_until_a_candidate_meets_the_target(data, emulator, tmp_path, monkeypatch):
+    info, calls = _screen(data, emulator, tmp_path / "met", [0.5, 0.4, 0.3, 0.6, 0.05, 0.01], monkeypatch)
+    assert calls == [0, 1, 2, 3, 4]  # stops at the first that meets it: candidate 5 never trained
+    assert not (tmp_path / "met" / "m.pt.ckpt.candidate5").exists()
+    assert (tmp_path / "met" / "m.pt.ckpt.candidate4").exists()
+    assert info["chosen"] == 4 and info["target"] == 0.1 and info["worst_reconstruction"] == [0.5, 0.4, 0.3, 0.6, 0.05]
+    assert info["seeds"] == [seeding.candidate_seed(3, c) for c in range(5)] and len(info["test_loss"]) == 5
+    # the run goes on from candidate 4: its history starts with that candidate's epochs
+    run = pd.read_csv(tmp_path / "met" / "m.csv")
+    cand = pd.read_csv(tmp_path / "met" / "m.pt.ckpt.candidate4.csv")
+    pd.testing.assert_frame_equal(_drop_timing(run.iloc[:2]), _drop_timing(cand))
+    # none meets it: all max_restarts screened, the lowest test loss continues
+    info, calls = _screen(data, emulator, tmp_path / "none", [0.5] * 6, monkeypatch)
+    assert calls == list(range(6)) and info["chosen"] == int(np.argmin(info["test_loss"]))
+    # one of the first restarts meets it: nothing more is screened, the choice as without a target
+    info, calls = _screen(data, emulator, tmp_path / "first", [0.5, 0.01, 0.01, 0.0, 0.0, 0.0], monkeypatch)
+    assert calls == [0, 1, 2] and len(info["test_loss"]) == 3
+    losses = info["test_loss"]
+    assert info["chosen"] == (1 if losses[1] <= losses[2] else 2)
+
+
 def test_hyper_validation():
     with pytest.raises(ValueError, match="missing"):
         hp.check_hyper("emulator", {k: v for k, v in EMU.items() if k != "lr"})
@@ -629,6 +703,13 @@ def test_hyper_validation():
                 {"restarts": 2, "restart_epochs": 5, "eval_every": 2}):
         with pytest.raises(ValueError, match="restart"):
             hp.check_hyper("encoder_decoder", ENCDEC | bad)
+    for bad in ({"restart_target": 0.1}, {"restart_target": 0.1, "max_restarts": 2} | _RESTARTS,
+                {"max_restarts": 6} | _RESTARTS, {"restart_target": 0.0} | _RESTARTS):
+        with pytest.raises(ValueError, match="restart_target"):
+            hp.check_hyper("encoder_decoder", ENCDEC | bad)
+    assert hp.check_hyper("encoder_decoder", ENCDEC | _SCREEN)["max_restarts"] == 6
+    with pytest.raises(ValueError, match="unknown"):
+        hp.check_hyper("emulator", EMU | {"restart_target": 0.1})
     h = hp.check_hyper("emulator", EMU)
     assert h["restarts"] == 1
     assert h["weight_decay"] == 0.0 and h["grad_clip"] == 0.0
@@ -646,7 +727,8 @@ def test_hyper_defaults_are_read_from_the_schema(tmp_path, monkeypatch):
     h = hp.check_hyper("encoder_decoder", ENCDEC)
     assert list(h) == ["weight_decay", "grad_clip", "lr_schedule", "lr_step", "lr_gamma", "warmup_epochs", "lr_final",
                        "eval_every", "keep_best", "dtype", "restarts", "restart_epochs", "reduction", "activation",
-                       "reeval_target", "noisy_scaling", "kl_warmup_epochs", "logvar_max", "log_parameters",
+                       "reeval_target", "noisy_scaling", "kl_warmup_epochs", "restart_target", "max_restarts",
+                       "logvar_max", "log_parameters",
                        "beta_prior", "latent_dim", "encoder_hidden", "encoder_layers", "decoder_hidden",
                        "decoder_layers", "beta_d", "beta_v", "beta_r", "epochs", "batch_size", "lr"]
     assert h["lr_step"] == 10 and h["reduction"] == "sum" and h["beta_prior"] == 0.0

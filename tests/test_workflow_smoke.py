@@ -146,18 +146,23 @@ def test_training_stage_end_to_end(trained_run):
     assert list(losses["epoch"]) == [1, 2]
     assert losses[["train_loss", "test_loss"]].notna().all().all()
     assert (work / "results/training/ehr/encoder_decoder_delta0.5_losses.png").is_file()
-    # the structural encoder/decoder (restarts: 2 in the smoke config): each candidate trained in
-    # a job of its own (log, benchmark), the run chose by their test losses at the choice
+    # the structural encoder/decoder (restarts: 2, restart_target: 1e-3, max_restarts: 3 in the smoke
+    # config): each of the two candidates trained in a job of its own (log, benchmark); after one
+    # epoch neither reconstructs every parameter, so the run screened a third itself, and chose by
+    # the three test losses at the choice
     _, info = networks.load_model(work / "results/models/structural/encoder_decoder_delta0.pt", with_info=True)
     restart = info["restart"]
+    assert restart["target"] == 1e-3 and len(restart["worst_reconstruction"]) == 3
+    assert all(w > 1e-3 for w in restart["worst_reconstruction"])
     cands = [pd.read_csv(work / f"results/models/structural/encoder_decoder_delta0.pt.ckpt.candidate{c}.csv")
-             for c in range(2)]
+             for c in range(3)]
     assert restart["test_loss"] == [float(df.loc[df["epoch"] == restart["epochs"], "test_loss"].iloc[0])
                                     for df in cands]
-    assert restart["chosen"] == min(range(2), key=lambda c: (restart["test_loss"][c], c))
+    assert restart["chosen"] == min(range(3), key=lambda c: (restart["test_loss"][c], c))
     for c in range(2):
         assert "done" in (work / f"logs/train_encoder_decoder_candidate/structural_delta0_{c}.log").read_text()
         assert (work / f"logs/benchmarks/train_encoder_decoder_candidate/structural_delta0_{c}.tsv").is_file()
+    assert not (work / "logs/train_encoder_decoder_candidate/structural_delta0_2.log").exists()
     # the generated appendix tables state what was run
     arch = pd.read_csv(work / "results/tables/ehr_architectures.csv")
     arch = arch.set_index("Module")

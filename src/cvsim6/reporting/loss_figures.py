@@ -65,7 +65,8 @@ def emulator_loss_label(hyper: dict) -> str:
 def restart_record(model: str | Path) -> dict | None:
     """The restart record a network trained with restarts keeps in its ``.pt`` file's ``info``
     (``epochs``: the epoch of the choice; ``chosen``: the candidate kept; ``seeds`` and
-    ``test_loss``: per candidate, ``inf`` for one that diverged), ``None`` without restarts."""
+    ``test_loss``: per candidate, ``inf`` for one that diverged; with a ``target``, each candidate's
+    ``worst_reconstruction`` MSE), ``None`` without restarts."""
     return read_info(model).get("restart")
 
 
@@ -80,8 +81,11 @@ def _mark_restart(ax, restart: dict) -> None:
     ax.plot([r] * len(others), scores[others], ls="none", marker="o", ms=7, mfc="none", mec="black",
             label=f"other initializations at epoch {r} ({len(others)})"
                   + (f"; {len(diverged)} diverged" if diverged else ""))
-    ax.plot([r], [scores[chosen]], ls="none", marker="o", ms=7, color="black",
-            label=f"kept: best test loss of {scores.size} at epoch {r}")
+    target, worst = restart.get("target"), restart.get("worst_reconstruction") or []
+    met = [c for c, w in enumerate(worst) if target is not None and w is not None and w <= target]
+    kept = (f"kept: best test loss at epoch {r} of the {len(met)} of {scores.size} with every parameter "
+            f"reconstructed (MSE <= {target:g})" if chosen in met else f"kept: best test loss of {scores.size} at epoch {r}")
+    ax.plot([r], [scores[chosen]], ls="none", marker="o", ms=7, color="black", label=kept)
 
 
 def _log_axis(ax, values: np.ndarray) -> None:

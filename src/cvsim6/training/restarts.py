@@ -1,6 +1,7 @@
 """Best of ``restarts`` initializations: each candidate trains the first ``restart_epochs``
 epochs of the schedule, the one with the lowest test loss there trains on
-(:func:`train_with_restarts`)."""
+(:func:`train_with_restarts`). With a ``restart_target``, candidates are screened further, up to
+``max_restarts``, until one has found every latent direction (:func:`choose_candidate`)."""
 from __future__ import annotations
 
 import logging
@@ -8,7 +9,6 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from cvsim6.seeding import candidate_seed
@@ -35,6 +35,35 @@ def _candidate_score(path: Path, fingerprint: str, restart_epochs: int) -> float
     if int(ck["epoch"]) < restart_epochs:
         return None
     return float(next(row["test_loss"] for row in ck["history"] if int(row["epoch"]) == restart_epochs))
+
+
+def worst_reconstruction(make_stage: Callable[[int], Stage], seed: int, c: int, path: Path) -> float | None:
+    """The largest per-parameter reconstruction MSE (:meth:`~cvsim6.training.stages.EncoderDecoderStage.reconstruction_errors`)
+    of restart candidate ``c`` at its checkpoint ``path``; ``None`` for a stage without one, ``inf``
+    for a candidate that diverged."""
+    ck = loop.read_checkpoint(path)
+    if ck is None or ck.get("diverged"):
+        return math.inf
+    stage = make_stage(candidate_seed(seed, c))
+    if not hasattr(stage, "reconstruction_errors"):
+        return None
+    stage.model.load_state_dict(ck["model"])
+    stage.model.eval()
+    return float(stage.reconstruction_errors().max())
+
+
+def meets_target(worst: list[float | None], target: float | None) -> bool:
+    """Whether a candidate's worst reconstruction MSE is at most ``target`` (never when None)."""
+    return target is not None and any(w is not None and w <= target for w in worst)
+
+
+def choose_candidate(test_loss: list[float], worst: list[float | None], target: float | None) -> int:
+    """The candidate to continue: the lowest test loss among those whose worst reconstruction
+    MSE is at most ``target`` (all of them when ``target`` is None or none is); ties to the lower
+    index, a diverged one (``inf``) only when all did."""
+    ok = [c for c, w in enumerate(worst) if meets_target([w], target)]
+    pool = ok or list(range(len(test_loss)))
+    return min(pool, key=lambda c: (test_loss[c], c))
 
 
 def _run_candidate(make_stage: Callable[[int], Stage], hyper: dict, seed: int, fingerprint: str, c: int,
@@ -77,10 +106,14 @@ def train_with_restarts(make_stage: Callable[[int], Stage], hyper: dict, seed: i
     full schedule, exactly as they would alone, with their own checkpoint and losses CSV
     (``candidates[c]`` and ``candidates[c] + ".csv"``; by default ``<checkpoint>.candidate<c>``);
     the one with the lowest test loss at that epoch (the criterion of ``keep_best``; ties to the
-    lower index; a diverged one loses) becomes the run's checkpoint and trains to the end. Every
+    lower index; a diverged one loses) becomes the run's checkpoint and trains to the end. With
+    ``restart_target`` (encoder/decoder), when no candidate's worst reconstruction MSE
+    (:func:`worst_reconstruction`) is at most the target, this job trains candidates k, k + 1, ...
+    one at a time until one is or ``max_restarts`` have trained, and the choice is among those that
+    meet the target (:func:`choose_candidate`). Every
     phase resumes from its checkpoint; ``max_epochs_this_run`` and ``max_cpu_seconds`` count
-    across the candidates. The model's ``info`` gets ``restart``: the candidates' seeds and test
-    losses and the chosen index.
+    across the candidates. The model's ``info`` gets ``restart``: the candidates' seeds, test
+    losses and worst reconstruction MSEs, the target and the chosen index.
 
     ``candidate`` = c trains only candidate c, to the choice, at ``checkpoint`` (required) with its
     losses at ``losses`` (the workflow runs each candidate as a job of its own, side by side, and
@@ -104,10 +137,16 @@ def train_with_restarts(make_stage: Callable[[int], Stage], hyper: dict, seed: i
     if len(paths) != k:
         raise ValueError(f"{info.get('stage')}: {len(paths)} candidate checkpoints given for restarts: {k}")
     r = int(hyper["restart_epochs"])
+    target = hyper.get("restart_target")
+    n_max = max(k, int(hyper.get("max_restarts") or k))
+    paths += [_candidate_path(ckpt, c) for c in range(k, n_max)]  # screened by this job, one at a time
     budget, cpu_left = max_epochs_this_run, max_cpu_seconds
     if (loop.read_checkpoint(ckpt) or {}).get("fingerprint") != fingerprint:
         scores: list[float] = []
+        worst: list[float | None] = []
         for c, path in enumerate(paths):
+            if c >= k and meets_target(worst, target):
+                break  # a screened candidate has found every direction
             res = _run_candidate(make_stage, hyper, seed, fingerprint, c, path, model_path, info, budget,
                                  checkpoint_every, progress, cpu_left)
             if budget is not None:
@@ -117,14 +156,19 @@ def train_with_restarts(make_stage: Callable[[int], Stage], hyper: dict, seed: i
             if res["score"] is None:  # stopped by the budget: resume later
                 return {**res, "completed": False}
             scores.append(res["score"])
+            worst.append(worst_reconstruction(make_stage, seed, c, path))
+            if worst[-1] is not None:
+                log.info("%s: restart candidate %d: worst parameter reconstruction MSE %.4g", info.get("stage"), c,
+                         worst[-1])
         if not any(math.isfinite(x) for x in scores):
-            raise FloatingPointError(f"{info.get('stage')}: all {k} restart candidates diverged")
-        chosen = int(np.argmin(scores))
-        log.info("%s: candidate %d chosen of %d", info.get("stage"), chosen, k)
+            raise FloatingPointError(f"{info.get('stage')}: all {len(scores)} restart candidates diverged")
+        chosen = choose_candidate(scores, worst, target)
+        log.info("%s: candidate %d chosen of %d", info.get("stage"), chosen, len(scores))
         ck = torch.load(paths[chosen], map_location="cpu", weights_only=True)
         ck["fingerprint"] = fingerprint
-        ck["extra"] = {"restart": {"epochs": r, "chosen": chosen,
-                                   "seeds": [candidate_seed(seed, c) for c in range(k)], "test_loss": scores}}
+        ck["extra"] = {"restart": {"epochs": r, "chosen": chosen, "target": target,
+                                   "seeds": [candidate_seed(seed, c) for c in range(len(scores))],
+                                   "test_loss": scores, "worst_reconstruction": worst}}
         loop.save_checkpoint(ckpt, ck)
     # the run's checkpoint holds the chosen candidate: fit resumes it (its weights and streams)
     return loop.fit(make_stage(seed), hyper, seed, fingerprint, model_path, losses, checkpoint, info,

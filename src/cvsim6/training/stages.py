@@ -199,6 +199,18 @@ class EncoderDecoderStage(Stage):
         return self._loss(self.v_tr[idx], self.y_epoch[idx], self.eps_epoch[idx], self.y_tr[idx], self.train_betas, w)
 
     @torch.no_grad()
+    def reconstruction_errors(self) -> torch.Tensor:
+        """Per parameter (23,), the decoder's mean squared error of the standardized test
+        parameters given the test outputs (noisy as in :meth:`evaluate`) and w = the encoder's
+        mean: near 0 for every parameter once the encoder has found every direction the outputs
+        leave open, about the parameter's unexplained variance for one it has not."""
+        err = torch.zeros(self.v_te.shape[1], dtype=torch.float64)
+        for s in range(0, len(self.v_te), EVAL_CHUNK):
+            v, y = self.v_te[s:s + EVAL_CHUNK], self.y_te[s:s + EVAL_CHUNK]
+            err += ((self.model.decode(y, self.model.encode(v)[0]) - v) ** 2).sum(0).double().cpu()
+        return err / len(self.v_te)
+
+    @torch.no_grad()
     def evaluate(self):
         w = self.w_prior_te
         return _chunked_mean(len(self.v_te), lambda s: self._loss(self.v_te[s], self.y_te[s], self.eps_te[s],

@@ -203,3 +203,25 @@ def test_restart_basins_reads_candidate_ranges_and_counts_used_latent_dimensions
     assert rb.latent_usage(loaded) == {"dims_used": 9, "kl_max_over_median": 2.0}
     none = rb.latent_usage(np.zeros(19))
     assert none["dims_used"] == 0 and np.isnan(none["kl_max_over_median"])
+
+
+def test_ehr_network_swap_ratio_counts_only_outputs_seen_in_more_than_ten_patients():
+    from cvsim6 import paper_values
+    from cvsim6.registry import OUTPUT_NAMES
+
+    sw = _load("ehr_network_swap")
+    i = list(paper_values.EHR_DELTAS).index(0.5)
+    given = [n for n in OUTPUT_NAMES if paper_values.EHR_EK[n][i] is not None]
+    counted, few = given[:-1], given[-1]  # the last given output seen in 10 patients only
+    factors = {n: (2.0 if j % 2 else 0.5) for j, n in enumerate(counted)}
+    factors[counted[0]] = 8.0  # the geometric mean is 8^(1/m) times 2^a 0.5^b
+    rows = {n: (factors[n] * paper_values.EHR_EK[n][i], 40) for n in counted}
+    rows[few] = (100.0 * paper_values.EHR_EK[few][i], 10)
+    rows.update({n: (123.0, 40) for n in OUTPUT_NAMES if n not in given})  # no paper value: left out
+    e_k = pd.DataFrame.from_dict(rows, orient="index", columns=["e_k", "count"])
+    ratio, each = sw.ek_ratio(e_k, 0.5)
+    assert list(each) == [n for n in OUTPUT_NAMES if n in counted]
+    assert each[counted[0]] == pytest.approx(8.0)
+    assert ratio == pytest.approx(float(np.exp(np.mean(np.log(list(factors.values()))))))
+    e_k["e_k"] *= 3.0
+    assert sw.ek_ratio(e_k, 0.5)[0] == pytest.approx(3.0 * ratio)

@@ -625,7 +625,7 @@ def test_reconstruction_errors_of_a_decoder_that_returns_zero_are_the_test_param
 _SCREEN = _RESTARTS | {"restart_target": 0.1, "max_restarts": 6}
 
 
-def _screen(data, emulator, d, worst, monkeypatch, hyper=_SCREEN):
+def _screen(data, emulator, d, worst, monkeypatch, hyper=_SCREEN, **kw):
     """A run whose candidate c has worst reconstruction MSE ``worst[c]`` (by design)."""
     calls = []
 
@@ -635,7 +635,9 @@ def _screen(data, emulator, d, worst, monkeypatch, hyper=_SCREEN):
         return worst[c]
 
     monkeypatch.setattr(restarts, "worst_reconstruction", fake)
-    assert _encdec_run(data, emulator, d, hyper)["completed"]
+    res = _encdec_run(data, emulator, d, hyper, **kw)
+    if not res["completed"]:
+        return None, calls
     return torch.load(d / "m.pt", weights_only=True)["info"]["restart"], calls
 
 
@@ -650,6 +652,14 @@ def test_screening_goes_on_until_a_candidate_meets_the_target(data, emulator, tm
     run = pd.read_csv(tmp_path / "met" / "m.csv")
     cand = pd.read_csv(tmp_path / "met" / "m.pt.ckpt.candidate4.csv")
     pd.testing.assert_frame_equal(_drop_timing(run.iloc[:2]), _drop_timing(cand))
+    # interrupted while screening candidate 4, then rerun: the same choice and weights
+    worst = [0.5, 0.4, 0.3, 0.6, 0.05, 0.01]
+    part, calls = _screen(data, emulator, tmp_path / "split", worst, monkeypatch, max_epochs_this_run=9)
+    assert part is None and calls == [0, 1, 2, 3]
+    assert torch.load(tmp_path / "split" / "m.pt.ckpt.candidate4", weights_only=True)["epoch"] == 1
+    again, calls = _screen(data, emulator, tmp_path / "split", worst, monkeypatch)
+    assert calls == [0, 1, 2, 3, 4] and again == info
+    _assert_same_weights(tmp_path / "met" / "m.pt", tmp_path / "split" / "m.pt")
     # none meets it: all max_restarts screened, the lowest test loss continues
     info, calls = _screen(data, emulator, tmp_path / "none", [0.5] * 6, monkeypatch)
     assert calls == list(range(6)) and info["chosen"] == int(np.argmin(info["test_loss"]))

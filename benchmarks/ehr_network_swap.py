@@ -38,15 +38,15 @@ FORMATS = {"e_k / paper": ".3f", "cpu_seconds": ".0f"}
 
 
 def ek_ratio(e_k: pd.DataFrame, delta: float) -> tuple[float, dict[str, float]]:
-    """Geometric mean over the scorecard's outputs (:func:`cvsim6.reporting.scorecard.ek_outputs`:
+    """Geometric mean over the scorecard's outputs (:func:`cvsim6.reporting.scorecard.counted_outputs`:
     seen in more than 10 patients, given by the paper) of e_k / the paper's e_k at ``delta`` (one of
     the paper's levels), and each output's ratio.
     ``e_k``: :func:`cvsim6.studies.ehr.error_per_output`'s table (index: output names)."""
     from cvsim6 import paper_values
-    from cvsim6.reporting.scorecard import ek_outputs, geomean_ratio
+    from cvsim6.reporting.scorecard import counted_outputs, geomean_ratio
 
     i = list(paper_values.EHR_DELTAS).index(float(delta))
-    seen = ek_outputs(pd.DataFrame({"Output": e_k.index, "Counts": [f"{int(c)}/0" for c in e_k["count"]]}))
+    seen = counted_outputs(e_k["count"])
     ours = e_k.loc[seen, "e_k"].to_numpy(float)
     paper = np.array([paper_values.EHR_EK[k][i] for k in seen], float)
     return geomean_ratio(ours, paper), dict(zip(seen, ours / paper))

@@ -74,16 +74,14 @@ def describe(checkpoint: Path, hyper: dict, data: Path, emulator: Path) -> dict:
     from cvsim6 import nets as nw
     from cvsim6.data.datasets import load_split
     from cvsim6.training.stages import EncoderDecoderStage
+    from cvsim6.training.train import encoder_decoder_net
 
     ck = torch.load(checkpoint, map_location="cpu", weights_only=True)
     v_tr, y_tr = load_split(str(data / "train.parquet"))
     v_te, y_te = load_split(str(data / "test.parquet"))
     mask = ck["model"].get("x_scaler.log_mask")
     log_cols = [] if mask is None else [int(i) for i in torch.nonzero(mask.bool()).flatten().tolist()]
-    net = nw.EncoderDecoder(latent_dim=hyper["latent_dim"], encoder_hidden=hyper["encoder_hidden"],
-                            encoder_layers=hyper["encoder_layers"], decoder_hidden=hyper["decoder_hidden"],
-                            decoder_layers=hyper["decoder_layers"], activation=hyper["activation"],
-                            logvar_max=hyper["logvar_max"], log_params=log_cols)
+    net = encoder_decoder_net(hyper, log_cols)
     net.load_state_dict(ck["model"])
     net.eval()
     emu = nw.load_model(str(emulator))
@@ -133,6 +131,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     run = results_io.Run(None if argv is None else ["benchmarks/restart_basins.py", *argv])
     hyper = dict(yaml.safe_load(args.config.read_text())["training"]["studies"]["structural"]["encoder_decoder"])
     hyper["restarts"] = max(int(hyper.get("restarts", 1)), max(args.candidates) + 1)
+    for key in ("restart_target", "max_restarts"):  # each candidate trains alone: no screening
+        hyper.pop(key, None)
     from cvsim6.training.hyperparameters import check_hyper
 
     hyper = check_hyper("encoder_decoder", hyper)

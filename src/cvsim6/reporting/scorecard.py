@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,11 +62,16 @@ def _read_json(path: str) -> dict:
     return json.loads(Path(path).read_text())
 
 
-def ek_outputs(ehr_errors: pd.DataFrame) -> list[str]:
-    """Outputs of table 5 that count: observed in more than 10 patients and given by the paper."""
-    counts = ehr_errors.set_index("Output")["Counts"].astype(str).str.split("/").str[0].astype(int)
+def counted_outputs(counts: Mapping[str, int]) -> list[str]:
+    """Outputs that count in the e_k headlines: observed in more than 10 patients (``counts``:
+    patients per output name) and given by the paper, in registry order."""
     return [n for n in OUTPUT_NAMES
             if counts.get(n, 0) > MIN_PATIENTS_EXCLUSIVE and paper_values.EHR_EK[n][0] is not None]
+
+
+def ek_outputs(ehr_errors: pd.DataFrame) -> list[str]:
+    """Outputs of table 5 that count (:func:`counted_outputs` of its ``Counts`` column)."""
+    return counted_outputs(ehr_errors.set_index("Output")["Counts"].astype(str).str.split("/").str[0].astype(int))
 
 
 def best_delta(ehr_errors: pd.DataFrame, outputs: list[str]) -> list[float]:

@@ -92,8 +92,8 @@ def check_cross_field_rules(stage: str, h: dict) -> None:
     if h["restarts"] > 1 and (not 1 <= h["restart_epochs"] < h["epochs"] or h["restart_epochs"] % h["eval_every"]):
         raise ValueError(f"{stage} hyperparameter restart_epochs must be an integer in [1, epochs) and a multiple of "
                          f"eval_every ({h['eval_every']}) when restarts > 1, got {h['restart_epochs']!r}")
-    if stage == "encoder_decoder" and (h["restart_target"] is not None or h["max_restarts"] is not None) and (
-            h["restarts"] == 1 or h["restart_target"] is None or (h["max_restarts"] or h["restarts"]) < h["restarts"]):
+    target, most = h.get("restart_target"), h.get("max_restarts")
+    if (target is not None and h["restarts"] == 1) or (most is not None and (target is None or most < h["restarts"])):
         raise ValueError(f"encoder_decoder hyperparameters restart_target and max_restarts need restarts > 1, a "
                          f"restart_target, and max_restarts >= restarts ({h['restarts']}), got restart_target "
                          f"{h['restart_target']!r}, max_restarts {h['max_restarts']!r}")

@@ -37,16 +37,13 @@ def _candidate_score(path: Path, fingerprint: str, restart_epochs: int) -> float
     return float(next(row["test_loss"] for row in ck["history"] if int(row["epoch"]) == restart_epochs))
 
 
-def worst_reconstruction(make_stage: Callable[[int], Stage], seed: int, c: int, path: Path) -> float | None:
+def worst_reconstruction(make_stage: Callable[[int], Stage], seed: int, c: int, path: Path) -> float:
     """The largest per-parameter reconstruction MSE (:meth:`~cvsim6.training.stages.EncoderDecoderStage.reconstruction_errors`)
-    of restart candidate ``c`` at its checkpoint ``path``; ``None`` for a stage without one, ``inf``
-    for a candidate that diverged."""
+    of restart candidate ``c`` at its checkpoint ``path``; ``inf`` for a candidate that diverged."""
     ck = loop.read_checkpoint(path)
     if ck is None or ck.get("diverged"):
         return math.inf
     stage = make_stage(candidate_seed(seed, c))
-    if not hasattr(stage, "reconstruction_errors"):
-        return None
     stage.model.load_state_dict(ck["model"])
     stage.model.eval()
     return float(stage.reconstruction_errors().max())
@@ -113,7 +110,7 @@ def train_with_restarts(make_stage: Callable[[int], Stage], hyper: dict, seed: i
     meet the target (:func:`choose_candidate`). Every
     phase resumes from its checkpoint; ``max_epochs_this_run`` and ``max_cpu_seconds`` count
     across the candidates. The model's ``info`` gets ``restart``: the candidates' seeds, test
-    losses and worst reconstruction MSEs, the target and the chosen index.
+    losses and worst reconstruction MSEs (None without a target), the target and the chosen index.
 
     ``candidate`` = c trains only candidate c, to the choice, at ``checkpoint`` (required) with its
     losses at ``losses`` (the workflow runs each candidate as a job of its own, side by side, and
@@ -156,7 +153,7 @@ def train_with_restarts(make_stage: Callable[[int], Stage], hyper: dict, seed: i
             if res["score"] is None:  # stopped by the budget: resume later
                 return {**res, "completed": False}
             scores.append(res["score"])
-            worst.append(worst_reconstruction(make_stage, seed, c, path))
+            worst.append(None if target is None else worst_reconstruction(make_stage, seed, c, path))
             if worst[-1] is not None:
                 log.info("%s: restart candidate %d: worst parameter reconstruction MSE %.4g", info.get("stage"), c,
                          worst[-1])

@@ -127,6 +127,15 @@ def train_flow(train: str, test: str, model: str, losses: str, hyper: dict, seed
                   progress, max_cpu_seconds, candidate, candidates)
 
 
+def encoder_decoder_net(h: dict, log_cols: list[int]) -> nw.EncoderDecoder:
+    """An untrained ``NN_v`` + ``NN_d`` of the checked hyperparameters ``h``, decoding the logarithms
+    of parameters ``log_cols``."""
+    return nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
+                             encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
+                             decoder_layers=h["decoder_layers"], activation=h["activation"],
+                             logvar_max=h["logvar_max"], log_params=log_cols)
+
+
 def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str,
                           hyper: dict, seed: int, noise_level: float = 0.0, device: str = "auto",
                           threads: int = 1, checkpoint: str | None = None,
@@ -147,10 +156,7 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
 
     def make_stage(init_seed: int) -> EncoderDecoderStage:
         torch.manual_seed(init_seed)
-        net = nw.EncoderDecoder(latent_dim=h["latent_dim"], encoder_hidden=h["encoder_hidden"],
-                                encoder_layers=h["encoder_layers"], decoder_hidden=h["decoder_hidden"],
-                                decoder_layers=h["decoder_layers"], activation=h["activation"],
-                                logvar_max=h["logvar_max"], log_params=log_cols)
+        net = encoder_decoder_net(h, log_cols)
         net.x_scaler.fit(v_tr)
         net.y_scaler.fit(y_tr)
         if h["noisy_scaling"]:

@@ -148,7 +148,7 @@ def test_restart_candidates_are_marked_and_kept_in_view(tmp_path, monkeypatch):
     lp.plot_training_losses(csv, str(tmp_path / "s.png"), "encoder_decoder_delta0", "structural",
                             model=str(tmp_path / "s.pt"))
     labels = [line.get_label() for line in captured["fig"].axes[0].get_lines()]
-    assert "kept: best test loss at epoch 50 of the 2 of 4 with every parameter reconstructed (MSE <= 0.05)" in labels
+    assert "kept: best test loss at epoch 50 of the 2 of 4\nwith every parameter reconstructed (MSE <= 0.05)" in labels
 
 
 def test_figure_modules_choose_no_backend_and_draw_with_a_display_set(tmp_path):

@@ -83,7 +83,7 @@ def _mark_restart(ax, restart: dict) -> None:
                   + (f"; {len(diverged)} diverged" if diverged else ""))
     target, worst = restart.get("target"), restart.get("worst_reconstruction") or []
     met = [c for c, w in enumerate(worst) if target is not None and w is not None and w <= target]
-    kept = (f"kept: best test loss at epoch {r} of the {len(met)} of {scores.size} with every parameter "
+    kept = (f"kept: best test loss at epoch {r} of the {len(met)} of {scores.size}\nwith every parameter "
             f"reconstructed (MSE <= {target:g})" if chosen in met else f"kept: best test loss of {scores.size} at epoch {r}")
     ax.plot([r], [scores[chosen]], ls="none", marker="o", ms=7, color="black", label=kept)
 

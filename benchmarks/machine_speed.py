@@ -49,22 +49,31 @@ def split_sizes(study_data: dict) -> tuple[int, int]:
     return n_train, rest - n_train
 
 
-def schedule_epochs(hyper: dict) -> int:
-    """Epochs one network trains, restart candidates included: ``restarts`` initializations
-    each train the first ``restart_epochs``, the chosen one continues to ``epochs``."""
-    extra = (int(hyper.get("restarts", 1)) - 1) * int(hyper.get("restart_epochs", 0))
+def candidates(hyper: dict, screened: bool = False) -> int:
+    """Restart candidates one network trains: ``restarts``; with ``screened``, as many as a
+    ``restart_target`` that no candidate meets makes the job screen (``max_restarts``)."""
+    k = int(hyper.get("restarts", 1))
+    most = hyper.get("max_restarts")
+    return int(most) if screened and hyper.get("restart_target") is not None and most is not None else k
+
+
+def schedule_epochs(hyper: dict, screened: bool = False) -> int:
+    """Epochs one network trains, restart candidates included: each candidate (see
+    ``candidates``) trains the first ``restart_epochs``, the chosen one continues to ``epochs``."""
+    extra = (candidates(hyper, screened) - 1) * int(hyper.get("restart_epochs", 0))
     return int(hyper["epochs"]) + max(extra, 0)
 
 
-def estimate(per_epoch: dict, training: dict, cores: int) -> tuple[pd.DataFrame, float, float]:
+def estimate(per_epoch: dict, training: dict, cores: int, screened: bool = False) -> tuple[pd.DataFrame, float, float]:
     """Per network (study, network): copies (noise levels), epochs, CPU-s; the total CPU-s; and
     the wall time on ``cores`` cores: the longer of the total over the cores and the structural
-    chain (emulator, then the encoder/decoder with its candidates side by side when cores allow)."""
+    chain (emulator, then the encoder/decoder with its ``restarts`` candidates side by side when
+    cores allow and, with ``screened``, the extra candidates up to ``max_restarts`` one at a time)."""
     rows = []
     for (study, network), s in per_epoch.items():
         h = training["studies"][study][network]
         copies = 1 if network == "emulator" else len(training["studies"][study]["noise_levels"])
-        epochs = schedule_epochs(h)
+        epochs = schedule_epochs(h, screened)
         rows.append({"study": study, "network": network, "copies": copies, "epochs": epochs,
                      "cpu_s_per_epoch": s, "cpu_s": s * epochs * copies})
     df = pd.DataFrame(rows)
@@ -74,6 +83,7 @@ def estimate(per_epoch: dict, training: dict, cores: int) -> tuple[pd.DataFrame,
     restarts = int(h.get("restarts", 1))
     first = int(h.get("restart_epochs", 0)) if restarts > 1 else 0
     waves = math.ceil(restarts / cores) if restarts > 1 else 0  # rounds of candidates side by side
+    waves += candidates(h, screened) - restarts  # screened candidates, one at a time in the training job
     chain = (per_epoch.get(("structural", "emulator"), 0.0) * int(structural["emulator"]["epochs"])
              + per_epoch.get(("structural", "encoder_decoder"), 0.0) * (waves * first + int(h["epochs"]) - first))
     return df, total, max(total / cores, chain)
@@ -110,8 +120,8 @@ def measure(study: str, network: str, cfg: dict, train: Path, test: Path, folder
     from cvsim6.training.hyperparameters import check_hyper
 
     h = dict(cfg["training"]["studies"][study][network])
-    h.pop("restarts", None)
-    h.pop("restart_epochs", None)
+    for key in ("restarts", "restart_epochs", "restart_target", "max_restarts"):  # one candidate's epochs
+        h.pop(key, None)
     n = max(epochs, int(h.get("eval_every", 1)))
     delta = float(cfg["training"]["studies"][study]["noise_levels"][0])
     out = dict(model=str(folder / f"{study}_{network}.pt"), losses=str(folder / f"{study}_{network}.csv"),
@@ -164,6 +174,7 @@ def main() -> None:
                 per_epoch[(study, network)] = measure(study, network, cfg, train, test, folder, args.epochs, args.seed)
                 print(f"  {study} {network}: {per_epoch[(study, network)]:.3f} CPU-s per epoch", flush=True)
     df, total, wall = estimate(per_epoch, cfg["training"], args.cores)
+    _, total_screened, wall_screened = estimate(per_epoch, cfg["training"], args.cores, screened=True)
     df["timed_run_cpu_s_per_epoch"] = [TIMED_RUN_CPU_PER_EPOCH.get((s, n), math.nan) for s, n in
                                        zip(df["study"], df["network"])]
     df["ratio_to_timed_run"] = df["cpu_s_per_epoch"] / df["timed_run_cpu_s_per_epoch"]
@@ -173,16 +184,22 @@ def main() -> None:
     print(f"\ntraining: {total:,.0f} CPU-s estimated; on {args.cores} cores at least {wall / 60:.0f} minutes wall "
           f"(the longer of the total over the cores and the structural chain; simulation, the study rules and "
           f"scheduling gaps not counted)")
+    if wall_screened > wall:
+        print(f"with every restart candidate up to max_restarts screened: {total_screened:,.0f} CPU-s, "
+              f"at least {wall_screened / 60:.0f} minutes wall")
     config = Path(args.configfile).resolve()
     name = "machine_speed" if config == (ROOT / "config" / "config.yaml").resolve() else f"machine_speed_{config.stem}"
     totals = pd.DataFrame({"quantity": ["training CPU seconds (estimate)", "cores",
-                                        "wall minutes on those cores, at least (estimate)"],
-                           "value": [total, args.cores, wall / 60]})
+                                        "wall minutes on those cores, at least (estimate)",
+                                        "training CPU seconds, every candidate to max_restarts screened",
+                                        "wall minutes, every candidate to max_restarts screened"],
+                           "value": [total, args.cores, wall / 60, total_screened, wall_screened / 60]})
     run.save(
         name, f"Training cost per network ({config.name})",
         f"Each network of {results_io.portable(str(config))} trained for {args.epochs} epochs (at least one "
         f"evaluation) through the workflow's training code, one thread, on synthetic data of the config's split "
-        f"sizes: CPU seconds per epoch; the epochs of the config's schedule (restart candidates included) and "
+        f"sizes: CPU seconds per epoch; the epochs of the config's schedule (the restart candidates included; the "
+        f"screened ones up to max_restarts in the last two rows of the estimate) and "
         f"copies (noise levels) give each network's CPU seconds. The timed run's column is a constant of "
         f"this script (the README's timed run at commit bfc86cf, its per-job files per rule over its epochs), "
         f"not measured here. An estimate: simulation, the study rules and scheduling gaps are not counted.",

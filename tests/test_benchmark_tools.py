@@ -52,6 +52,7 @@ def test_workflow_times_sums_jobs_per_rule_and_source(tmp_path):
     assert table["cpu_share"].iloc[:-1].sum() == pytest.approx(1.0)
 
 
+
 def test_workflow_times_rejects_a_file_that_is_not_a_benchmark(tmp_path):
     wt = _load("workflow_times")
     (tmp_path / "notes.tsv").write_text("a\tb\n1\t2\n")
@@ -106,6 +107,14 @@ def test_machine_speed_estimate_counts_copies_candidates_and_the_structural_chai
     assert wall == 5400 + 2.0 * (2 * 500 + 6700)
     assert tool.estimate(per_epoch, training, cores=3)[2] == 5400 + 2.0 * (500 + 6700)
     assert tool.estimate(per_epoch, training, cores=1)[2] == total
+    # a restart target: up to max_restarts candidates, the extra ones one at a time after the first round
+    ed.update(restart_target=0.05, max_restarts=6)
+    assert tool.candidates(ed) == 3 and tool.candidates(ed, screened=True) == 6
+    assert tool.schedule_epochs(ed) == 8200 and tool.schedule_epochs(ed, screened=True) == 7200 + 5 * 500
+    _, total_s, wall_s = tool.estimate(per_epoch, training, cores=2, screened=True)
+    assert total_s == total + 2.0 * 3 * 500
+    assert wall_s == 5400 + 2.0 * ((2 + 3) * 500 + 6700)
+    assert tool.estimate(per_epoch, training, cores=2)[1:] == (total, wall)  # unscreened: as without a target
 
 
 def test_batched_copies_compute_each_copys_loss_and_gradient():

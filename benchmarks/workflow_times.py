@@ -28,7 +28,8 @@ JOB_BENCHMARKS = Path(__file__).resolve().parents[1] / "logs" / "benchmarks"
 
 def job_times(root: Path) -> pd.DataFrame:
     """One row per job: source (``trained``, or ``published`` for ``published/``, the
-    run with the paper's networks), rule, job (wildcards), wall_s, cpu_s, max_rss_mb."""
+    run with the paper's networks), rule, job (wildcards), wall_s, cpu_s, max_rss_mb, and
+    end_s: when the job ended (the file's modification time, seconds since the epoch)."""
     rows = []
     for tsv in sorted(root.rglob("*.tsv")):
         rel = tsv.relative_to(root)
@@ -42,7 +43,7 @@ def job_times(root: Path) -> pd.DataFrame:
             raise ValueError(f"{tsv}: not a Snakemake benchmark file (columns {list(df.columns)})")
         last = df.iloc[-1]  # a rule run with `repeat()` has one row per repeat; the last one counts
         rows.append(dict(source=source, rule=rule, job=job, wall_s=float(last["s"]), cpu_s=float(last["cpu_time"]),
-                         max_rss_mb=float(last["max_rss"])))
+                         max_rss_mb=float(last["max_rss"]), end_s=tsv.stat().st_mtime))
     if not rows:
         raise FileNotFoundError(f"no Snakemake benchmark files under {root}")
     return pd.DataFrame(rows)
@@ -62,8 +63,18 @@ def rule_times(jobs: pd.DataFrame) -> pd.DataFrame:
     return pd.concat([table, total]).rename_axis("rule").reset_index()
 
 
+def run_spans(jobs: pd.DataFrame) -> pd.DataFrame:
+    """Per source: jobs, CPU seconds, and the elapsed wall time of its run from the first job's
+    start (its end less its wall seconds) to the last job's end, in seconds and minutes. Valid
+    for one run per source whose files kept their modification times (not copied without them)."""
+    g = jobs.assign(start_s=jobs["end_s"] - jobs["wall_s"]).groupby("source", sort=False)
+    span = pd.DataFrame({"jobs": g.size(), "cpu_s": g["cpu_s"].sum(), "elapsed_s": g["end_s"].max() - g["start_s"].min()})
+    span["elapsed_min"] = span["elapsed_s"] / 60
+    return span.rename_axis("source").reset_index()
+
+
 #: How the per-rule and per-job tables are shown (the page and ``--markdown``).
-FORMATS = {"cpu_s": ",.0f", "wall_s": ",.0f", "longest_wall_s": ",.0f", "max_rss_mb": ",.0f", "cpu_share": ".1%"}
+FORMATS = {"elapsed_s": ",.0f", "elapsed_min": ".1f", "cpu_s": ",.0f", "wall_s": ",.0f", "longest_wall_s": ",.0f", "max_rss_mb": ",.0f", "cpu_share": ".1%"}
 
 
 def main() -> None:
@@ -91,7 +102,9 @@ def main() -> None:
             shown[col] = shown[col].map(("{:" + f.replace(",", "") + "}").format)
     print(shown.to_markdown(index=False) if args.markdown else shown.to_string(index=False))
 
-    tables = []
+    tables = [results_io.table(
+        run_spans(all_jobs), "runs", "Per run (network source): its jobs, their CPU seconds, and its elapsed wall "
+        "time from the first job's start to the last job's end (from the files' modification times).", FORMATS)]
     for source in ("trained", "published"):
         part = all_jobs[all_jobs["source"] == source]
         if len(part):
@@ -99,7 +112,7 @@ def main() -> None:
                 rule_times(part), f"rules_{source}",
                 f"Per rule, the {source} networks' jobs: CPU and wall seconds summed over the jobs, the longest "
                 f"job's wall seconds, peak memory (MB) and share of the CPU seconds; largest first.", FORMATS))
-    every = all_jobs.sort_values(["source", "rule", "job"]).reset_index(drop=True)
+    every = all_jobs.drop(columns="end_s").sort_values(["source", "rule", "job"]).reset_index(drop=True)
     tables.append(results_io.table(every, "jobs", "Every job: its wall and CPU seconds and peak memory (MB).",
                                    FORMATS, page=False))
     newest = max(p.stat().st_mtime for p in Path(args.root).rglob("*.tsv"))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,16 @@ def test_workflow_times_sums_jobs_per_rule_and_source(tmp_path):
     assert table.loc["total", "wall_s"] == pytest.approx(900.0 + 610.0 + 2.0)
     assert table["cpu_share"].iloc[:-1].sum() == pytest.approx(1.0)
 
+    # the run's elapsed time: first start (end - wall) to last end, per source
+    for name, end in [("train_flow/ehr_delta0.5", 1000.0), ("train_flow/ehr_delta1", 1400.0),
+                      ("train_emulator/structural", 1100.0), ("ehr_patients", 1402.0),
+                      ("published/convert_published/ehr", 5000.0)]:
+        os.utime(tmp_path / f"{name}.tsv", (end, end))
+    spans = wt.run_spans(wt.job_times(tmp_path)).set_index("source")
+    assert spans.loc["trained", "elapsed_s"] == pytest.approx(1402.0 - (1100.0 - 900.0))
+    assert spans.loc["trained", "elapsed_min"] == pytest.approx(1202.0 / 60)
+    assert spans.loc["published", "elapsed_s"] == pytest.approx(3.0)
+    assert spans.loc["trained", "jobs"] == 4 and spans.loc["trained", "cpu_s"] == pytest.approx(1451.5)
 
 
 def test_workflow_times_rejects_a_file_that_is_not_a_benchmark(tmp_path):

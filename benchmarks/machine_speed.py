@@ -4,10 +4,10 @@ Trains each network of a workflow config (default ``config/config.yaml``) for a 
 through the workflow's own training code (one thread, as the rules run it), on synthetic data
 of the config's split sizes: a few hundred simulated parameter sets from the study's prior,
 repeated to the training and test sizes (the cost of an epoch depends on the sizes, not the
-values). Prints, per network, the CPU seconds per epoch measured here, the same for the timed
-run of the README (commit ``bfc86cf``, its ``benchmarks/`` per rule divided by its epochs) and
-the ratio, and estimates the training's CPU seconds for the whole config and the wall time on
-``--cores`` cores. An estimate, not a run: it leaves out simulation and the study rules (about
+values). Prints, per network, the CPU seconds per epoch measured here, the same for a timed
+run on the development machine (commit ``bfc86cf``, its ``benchmarks/`` per rule divided by
+its epochs) and the ratio, and estimates the training's CPU seconds for the whole config and
+the wall time on ``--cores`` cores. An estimate, not a run: it leaves out simulation and the study rules (about
 5% of the timed run's CPU time) and scheduling gaps.
 
     .venv/bin/python benchmarks/machine_speed.py
@@ -30,7 +30,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 NETWORKS = ("emulator", "flow", "encoder_decoder")
-#: CPU seconds per epoch of each network in the README's timed run of the default config
+#: CPU seconds per epoch of each network in a timed run of the default config on the development machine
 #: (commit ``bfc86cf``, seed 2024, 2 cores): that run's benchmarks/ per rule over its epochs
 #: (structural emulator 1,452 CPU-s / 5,400 epochs, encoder/decoder 4,224 / 7,200, flow 543 /
 #: 600; EHR emulator 1,927 / 6,000, encoder/decoders 420-450 / 800, flows 245-300 / 400).
@@ -178,7 +178,7 @@ def main() -> None:
     df["timed_run_cpu_s_per_epoch"] = [TIMED_RUN_CPU_PER_EPOCH.get((s, n), math.nan) for s, n in
                                        zip(df["study"], df["network"])]
     df["ratio_to_timed_run"] = df["cpu_s_per_epoch"] / df["timed_run_cpu_s_per_epoch"]
-    print(f"\n{Path(args.configfile).name}: per network, this machine against the README's timed run "
+    print(f"\n{Path(args.configfile).name}: per network, this machine against the development machine's timed run "
           f"(measured in {time.perf_counter() - started:.0f} s)")
     print(df.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print(f"\ntraining: {total:,.0f} CPU-s estimated; on {args.cores} cores at least {wall / 60:.0f} minutes wall "
@@ -201,7 +201,7 @@ def main() -> None:
         f"sizes: CPU seconds per epoch; the epochs of the config's schedule (the restart candidates included; the "
         f"screened ones up to max_restarts in the last two rows of the estimate) and "
         f"copies (noise levels) give each network's CPU seconds. The timed run's column is a constant of "
-        f"this script (the README's timed run at commit bfc86cf, its per-job files per rule over its epochs), "
+        f"this script (a timed run on the development machine at commit bfc86cf, its per-job files per rule over its epochs), "
         f"not measured here. An estimate: simulation, the study rules and scheduling gaps are not counted.",
         [results_io.table(df, "networks", "CPU seconds per epoch per network, and for the config's schedule.",
                           {"cpu_s_per_epoch": ".3g", "cpu_s": ",.0f", "timed_run_cpu_s_per_epoch": ".3g",

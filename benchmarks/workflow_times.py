@@ -11,7 +11,8 @@ where the CPU time of a ``snakemake --cores 2 all`` run went.
 A file left from an earlier run of another rule set is counted too: run it on the
 ``logs/benchmarks/`` of a fresh clone for one run's figures.
 
-Writes ``benchmarks/results/workflow_times.json``: the per-rule table of each source (the
+Writes ``benchmarks/results/workflow_times.json`` (``--name``: another file, for another machine's
+run beside it): the elapsed and busy wall time of each run, the per-rule table of each source (the
 trained networks' run, and the published networks' where present) and every job, whatever
 ``--source`` and ``--jobs`` print.
 """
@@ -64,17 +65,32 @@ def rule_times(jobs: pd.DataFrame) -> pd.DataFrame:
 
 
 def run_spans(jobs: pd.DataFrame) -> pd.DataFrame:
-    """Per source: jobs, CPU seconds, and the elapsed wall time of its run from the first job's
-    start (its end less its wall seconds) to the last job's end, in seconds and minutes. Valid
-    for one run per source whose files kept their modification times (not copied without them)."""
-    g = jobs.assign(start_s=jobs["end_s"] - jobs["wall_s"]).groupby("source", sort=False)
-    span = pd.DataFrame({"jobs": g.size(), "cpu_s": g["cpu_s"].sum(), "elapsed_s": g["end_s"].max() - g["start_s"].min()})
+    """Per source: jobs, CPU seconds, the elapsed wall time of its run from the first job's start
+    (its end less its wall seconds) to the last job's end, and the busy wall time: the length of
+    the union of the jobs' [start, end] intervals, which leaves out the gaps of a run stopped and
+    resumed. In seconds and minutes. Valid for files that kept their modification times (not
+    copied without them); a job killed before its end left no file, so its time is not counted."""
+    jobs = jobs.assign(start_s=jobs["end_s"] - jobs["wall_s"])
+    g = jobs.groupby("source", sort=False)
+    span = pd.DataFrame({"jobs": g.size(), "cpu_s": g["cpu_s"].sum(), "elapsed_s": g["end_s"].max() - g["start_s"].min(),
+                         "busy_s": g[["start_s", "end_s"]].apply(_union_length)})
     span["elapsed_min"] = span["elapsed_s"] / 60
+    span["busy_min"] = span["busy_s"] / 60
     return span.rename_axis("source").reset_index()
 
 
+def _union_length(intervals: pd.DataFrame) -> float:
+    """Length of the union of the intervals [start_s, end_s] (seconds)."""
+    total, reach = 0.0, -float("inf")
+    for start, end in sorted(zip(intervals["start_s"], intervals["end_s"])):
+        total += max(0.0, end - max(start, reach))
+        reach = max(reach, end)
+    return total
+
+
 #: How the per-rule and per-job tables are shown (the page and ``--markdown``).
-FORMATS = {"elapsed_s": ",.0f", "elapsed_min": ".1f", "cpu_s": ",.0f", "wall_s": ",.0f", "longest_wall_s": ",.0f", "max_rss_mb": ",.0f", "cpu_share": ".1%"}
+FORMATS = {"elapsed_s": ",.0f", "elapsed_min": ".1f", "busy_s": ",.0f", "busy_min": ".1f", "cpu_s": ",.0f",
+           "wall_s": ",.0f", "longest_wall_s": ",.0f", "max_rss_mb": ",.0f", "cpu_share": ".1%"}
 
 
 def main() -> None:
@@ -86,6 +102,8 @@ def main() -> None:
     ap.add_argument("--jobs", action="store_true", help="one row per job instead of per rule")
     ap.add_argument("--source", choices=["trained", "published", "all"], default="trained",
                     help="which run's files: the trained networks' (default), the published ones', or both")
+    ap.add_argument("--name", default="workflow_times",
+                    help="result file name: benchmarks/results/<name>.json (another machine's run beside the default's)")
     results_io.add_note_argument(ap)
     args = ap.parse_args()
     run = results_io.Run()
@@ -103,8 +121,10 @@ def main() -> None:
     print(shown.to_markdown(index=False) if args.markdown else shown.to_string(index=False))
 
     tables = [results_io.table(
-        run_spans(all_jobs), "runs", "Per run (network source): its jobs, their CPU seconds, and its elapsed wall "
-        "time from the first job's start to the last job's end (from the files' modification times).", FORMATS)]
+        run_spans(all_jobs), "runs", "Per run (network source): its jobs, their CPU seconds, its elapsed wall "
+        "time from the first job's start to the last job's end, and its busy wall time, the union of the jobs' "
+        "intervals, which leaves out the gaps of a run stopped and resumed (from the files' modification times).",
+        FORMATS)]
     for source in ("trained", "published"):
         part = all_jobs[all_jobs["source"] == source]
         if len(part):
@@ -116,8 +136,9 @@ def main() -> None:
     tables.append(results_io.table(every, "jobs", "Every job: its wall and CPU seconds and peak memory (MB).",
                                    FORMATS, page=False))
     newest = max(p.stat().st_mtime for p in Path(args.root).rglob("*.tsv"))
+    suffix = args.name.removeprefix("workflow_times").strip("_").replace("_", " ")
     run.save(
-        "workflow_times", "Workflow: CPU and wall seconds per rule",
+        args.name, "Workflow: CPU and wall seconds per rule" + (f" ({suffix})" if suffix else ""),
         "Where a run of the workflow spent its time: Snakemake's per-job benchmark files (the rules' "
         "benchmark: directive) summed per rule. Wall seconds are summed over the jobs, so they exceed "
         "the run's elapsed time when jobs ran side by side. The machine and load average of this section are "

@@ -62,6 +62,17 @@ def test_workflow_times_sums_jobs_per_rule_and_source(tmp_path):
     assert spans.loc["trained", "elapsed_min"] == pytest.approx(1202.0 / 60)
     assert spans.loc["published", "elapsed_s"] == pytest.approx(3.0)
     assert spans.loc["trained", "jobs"] == 4 and spans.loc["trained", "cpu_s"] == pytest.approx(1451.5)
+    # busy time: the union of [200, 1100], [700, 1000], [1090, 1400] and [1400, 1402], no gap
+    assert spans.loc["trained", "busy_s"] == pytest.approx(1202.0)
+
+    # a run stopped and resumed: the gap between its two parts is elapsed, not busy
+    _bench(tmp_path / "train_flow" / "ehr_delta2.tsv", 100.0, 90.0, 650.0)
+    os.utime(tmp_path / "train_flow" / "ehr_delta2.tsv", (3000.0, 3000.0))
+    spans = wt.run_spans(wt.job_times(tmp_path)).set_index("source")
+    assert spans.loc["trained", "elapsed_s"] == pytest.approx(3000.0 - 200.0)
+    assert spans.loc["trained", "busy_s"] == pytest.approx(1202.0 + 100.0)
+    assert spans.loc["trained", "busy_min"] == pytest.approx(1302.0 / 60)
+    assert spans.loc["published", "busy_s"] == pytest.approx(3.0)
 
 
 def test_workflow_times_rejects_a_file_that_is_not_a_benchmark(tmp_path):

@@ -59,6 +59,24 @@ def test_readme_is_a_short_guide_without_history():
         assert section in README, section
 
 
+def _busy_minutes(result: str, source: str = "trained") -> float:
+    """Busy wall minutes of the committed timed run ``benchmarks/results/<result>.json`` of one
+    network source (``benchmarks/workflow_times.py``: the union of its jobs' intervals)."""
+    import json
+
+    tables = json.loads((ROOT / "benchmarks" / "results" / f"{result}.json").read_text())["tables"]
+    runs = next(t for t in tables if t["name"] == "runs")
+    rows = [dict(zip(runs["columns"], r)) for r in runs["rows"]]
+    return float(next(r["busy_min"] for r in rows if r["source"] == source))
+
+
+def test_slow_machine_run_time_is_the_measured_one():
+    """The Quick start's run time on a slow machine is that of the committed timed run there."""
+    m = re.search(r"up to about (\d+) on a slow one", README)
+    assert m, "the Quick start's run time on a slow machine"
+    assert float(m[1]) * 60 == pytest.approx(_busy_minutes("workflow_times_second_machine"), rel=0.15)
+
+
 def test_test_command_is_what_ci_runs():
     pytest_cmd = next(c for c in commands("python") if "pytest" in c and "not slow" not in c)
     assert pytest_cmd in (ROOT / ".ci/run").read_text()

@@ -24,7 +24,7 @@ COMMAND = ".venv/bin/python benchmarks/performance_page.py"
 
 #: Order of the sections, by result-file name pattern; files matching none come last, by name.
 ORDER = ("simulator*", "machine_speed*", "workflow_times*", "algorithm*", "inversion*", "training_*",
-         "emulator_errors_*", "restart_basins*", "batched_copies*", "seed_spread*")
+         "emulator_errors_*", "restart_basins*", "continuation_epochs*", "batched_copies*", "seed_spread*")
 #: Result files the page expects, and how to write each when it is absent.
 EXPECTED = {
     "simulator": ("the simulator's speed and accuracy against the reference solver",

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -18,6 +19,7 @@ from cvsim6.training import train as tr
 from cvsim6.training.stages import EmulatorStage, EncoderDecoderStage, FlowStage
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
 
+ROOT = Path(__file__).resolve().parents[1]
 EMU = dict(hidden=32, layers=3, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
 FLOW = dict(hidden=16, blocks=4, layers_per_block=4, batchnorm=True, epochs=40, batch_size=64, lr=5e-3,
             lr_step=20, lr_gamma=0.7, weight_decay=1e-5)
@@ -540,6 +542,41 @@ def test_candidates_trained_as_jobs_of_their_own_give_the_same_run_and_are_only_
     assert info[0] == info[1]
     pd.testing.assert_frame_equal(_drop_timing(pd.read_csv(tmp_path / "r" / "m.csv")),
                                   _drop_timing(pd.read_csv(jobs / "m.csv")))
+
+
+def test_a_candidate_continued_under_a_shorter_schedule_resumes_at_the_choice(data, emulator, tmp_path):
+    """benchmarks/continuation_epochs.py: the chosen candidate's checkpoint, given the fingerprint
+    of a run with fewer epochs (:func:`~cvsim6.training.train.encoder_decoder_fingerprint`, the
+    one that run's checkpoints hold), is resumed at the choice epoch and trained to the end."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("continuation_epochs", ROOT / "benchmarks" / "continuation_epochs.py")
+    ce = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ce)
+    hyper = ENCDEC | _RESTARTS | {"epochs": 8, "lr_schedule": "cosine", "warmup_epochs": 0, "lr_final": 0.1}
+    d = tmp_path / "run"
+    d.mkdir()
+    ckpt = d / "m.pt.ckpt.candidate1"
+    tr.train_encoder_decoder(str(data[0]), str(data[1]), emulator=str(emulator[0] / "emulator.pt"),
+                             model=str(d / "m.pt"), losses=f"{ckpt}.csv", checkpoint=str(ckpt), hyper=hyper, seed=3, device="cpu",
+                             progress=False, candidate=1)
+    restart = {"chosen": 1, "epochs": 2}
+    job = (5, tmp_path / "e5", data[0].parent, emulator[0] / "emulator.pt", hyper, 3, ckpt, restart)
+    assert ce.continue_candidate(job)[0::2] == (5, 3)  # epochs 3-5 trained here
+    out = tmp_path / "e5"
+    losses = pd.read_csv(out / "encoder_decoder_delta0_losses.csv")
+    assert losses["epoch"].tolist() == [1, 2, 3, 4, 5]
+    pd.testing.assert_frame_equal(_drop_timing(losses.iloc[:2]), _drop_timing(pd.read_csv(f"{ckpt}.csv")))
+    assert losses["lr"].iloc[-1] == pytest.approx(0.1 * hyper["lr"])  # the 5-epoch cosine's end
+    saved = torch.load(out / "models" / "encoder_decoder_delta0.pt", weights_only=True)["info"]
+    assert saved["epochs_done"] == 5 and saved["restart"] == restart
+    # the fingerprint is the one a 5-epoch run writes, and differs from the 8-epoch run's
+    splits = (*load_split(str(data[0])), *load_split(str(data[1])))
+    fp5 = tr.encoder_decoder_fingerprint(hp.check_hyper("encoder_decoder", hyper | {"epochs": 5}), 3, 0.0, splits,
+                                         str(emulator[0] / "emulator.pt"))
+    assert torch.load(out / "models" / "encoder_decoder_delta0.pt.ckpt", weights_only=True)["fingerprint"] == fp5
+    assert torch.load(ckpt, weights_only=True)["fingerprint"].split(":")[0] != fp5
+    assert ce.continue_candidate(job)[0::2] == (5, 0)  # a rerun reads the finished continuation
 
 
 def test_candidate_options_are_checked(data, emulator, tmp_path):

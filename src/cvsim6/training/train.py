@@ -136,6 +136,16 @@ def encoder_decoder_net(h: dict, log_cols: list[int]) -> nw.EncoderDecoder:
                              logvar_max=h["logvar_max"], log_params=log_cols)
 
 
+def encoder_decoder_fingerprint(h: dict, seed: int, noise_level: float, splits: tuple, emulator: str) -> str:
+    """Identity of an encoder/decoder run (:mod:`cvsim6.training.fingerprint`): checked ``h``, the
+    master ``seed``, ``noise_level``, the ``splits`` (v_train, y_train, v_test, y_test) and the
+    ``emulator`` file's contents. Its checkpoint holds it; a benchmark that continues a restart
+    candidate under another schedule writes it into the candidate's checkpoint."""
+    return run_fingerprint(stage="encoder_decoder", hyper=h, seed=seed, noise=float(noise_level),
+                           data=array_digest(*splits), emulator=file_digest(emulator),
+                           noise_std=noise_std().tolist(), fmt=nw.FORMAT)
+
+
 def train_encoder_decoder(train: str, test: str, emulator: str, model: str, losses: str,
                           hyper: dict, seed: int, noise_level: float = 0.0, device: str = "auto",
                           threads: int = 1, checkpoint: str | None = None,
@@ -167,9 +177,7 @@ def train_encoder_decoder(train: str, test: str, emulator: str, model: str, loss
                                    net.x_scaler.transform(v_te), net.y_scaler.transform(y_te), noise_level, h,
                                    test_gen, dev, dtype)
 
-    fp = run_fingerprint(stage="encoder_decoder", hyper=h, seed=seed, noise=float(noise_level),
-                         data=array_digest(v_tr, y_tr, v_te, y_te), emulator=file_digest(emulator),
-                         noise_std=noise_std().tolist(), fmt=nw.FORMAT)
+    fp = encoder_decoder_fingerprint(h, seed, noise_level, (v_tr, y_tr, v_te, y_te), emulator)
     info = {"stage": "encoder_decoder", "hyper": h, "seed": seed, "noise_level": float(noise_level),
             "n_train": len(v_tr), "n_test": len(v_te), "label": f"delta={noise_level:g}"}
     return train_with_restarts(make_stage, h, seed, fp, model, losses, checkpoint, info, max_epochs_this_run, checkpoint_every,

@@ -236,6 +236,21 @@ def test_restart_basins_reads_candidate_ranges_and_counts_used_latent_dimensions
     assert none["dims_used"] == 0 and np.isnan(none["kl_max_over_median"])
 
 
+def test_continuation_epochs_summary_keeps_the_best_tested_epoch_and_counts_cpu_after_the_choice(tmp_path):
+    ce = _load("continuation_epochs")
+    nan = float("nan")
+    pd.DataFrame({"epoch": [1, 2, 3, 4, 5, 6], "test_loss": [9.0, 7.0, nan, 5.0, nan, 6.0],
+                  "cpu_seconds": [1.0, 1.0, 2.0, 2.0, 3.0, 3.0]}).to_csv(tmp_path / "losses.csv", index=False)
+    # the kept weights: the lowest tested loss (epoch 4); CPU of the epochs after the choice (2) only
+    assert ce.training_summary(tmp_path / "losses.csv", 2) == {"best_epoch": 4, "best_test_loss": 5.0,
+                                                                "continuation_cpu_s": 10.0}
+    # every headline it reports is one the scorecard reads from the files it writes
+    from cvsim6.reporting import scorecard
+
+    assert set(ce.OUTPUTS) | {"stiffness", "structural_emulator", "ehr_emulator", "ehr_errors"} == \
+        set(scorecard.HEADLINE_FILES)
+
+
 def test_ehr_network_swap_ratio_counts_only_outputs_seen_in_more_than_ten_patients():
     from cvsim6 import paper_values
     from cvsim6.registry import OUTPUT_NAMES

@@ -6,15 +6,16 @@ on one core, the longest job of a run. This script continues a finished run's ch
 from its checkpoint at the choice, under the config's schedule with ``epochs`` = E for each
 ``--epochs`` E (one thread each, ``--jobs`` side by side), and runs on each model the structural
 evaluations behind the scorecard's headlines (table 3, the manifold's reconstruction and its
-resampled median, SVD modes, missing data) with the config's settings and the run's seed, flow,
-emulator and y*. The row ``run`` is the run's own model (E = the config's), evaluated the same
-way: it must match the run's scorecard, which checks the evaluation here.
+resampled median, SVD modes, missing data) with the run's config, seed, flow, emulator and y*.
+The row ``run`` is the run's own model (E = the config's), evaluated the same way, first: the
+script compares it with the run's own headline files and warns when they differ (another config,
+code or floating-point path; ``run_row_differs_from_run`` in the result file).
 
 A shortened run is not the same as this continuation for its first ``restart_epochs`` epochs:
 the candidate trained them under the cosine of the config's E, so its learning rate at the
 switch is that schedule's (a drop to the new schedule's value follows).
 
-    .venv/bin/python benchmarks/continuation_epochs.py --run <run> --seed 2024 --epochs 2000 3500 \\
+    .venv/bin/python benchmarks/continuation_epochs.py --run <run> --epochs 2000 3500 \\
         --work <scratch>/continuation
 
 Output: the table on stdout, and ``benchmarks/results/continuation_epochs.json`` (``--name``).
@@ -22,8 +23,10 @@ Output: the table on stdout, and ``benchmarks/results/continuation_epochs.json``
 from __future__ import annotations
 
 import argparse
+import math
 import multiprocessing as mp
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -39,9 +42,13 @@ ROOT = Path(__file__).resolve().parents[1]
 HEADLINES = ("structural_inversion_mean", "structural_inversion_max", "manifold_l2", "manifold_l2_resampled",
              "svd_modes", "missing_l2")
 #: Where each evaluation writes, under a model's folder (the workflow's layout of a network source).
-OUTPUTS = {"structural_inversion": "tables/structural_inversion_errors",
-           "manifold": "tables/structural_manifold_reconstruction", "svd": "structural/manifold_svd",
-           "missing": "tables/structural_missing_data"}
+OUTPUTS = {"structural_inversion": "tables/structural_inversion_errors.csv",
+           "manifold": "tables/structural_manifold_reconstruction.json", "svd": "structural/manifold_svd.json",
+           "missing": "tables/structural_missing_data.json"}
+#: The run's headline files the encoder/decoder does not move (under its results/).
+RUN_FILES = {"stiffness": "stiffness/sr_extremes.csv",
+             "structural_emulator": "tables/structural_emulator_validation.csv",
+             "ehr_emulator": "training/ehr/emulator_l2_errors.json", "ehr_errors": "tables/ehr_error_per_output.csv"}
 FORMATS = {"continuation_cpu_s": ".0f", "best_test_loss": ".2f", **{f"{h} / paper": ".3f" for h in HEADLINES}}
 
 
@@ -83,7 +90,7 @@ def evaluate(encoder_decoder: Path, out: Path, run: Path, cfg: dict, seed: int) 
     res, sc, sim = run / "results", cfg["structural_study"], cfg["simulator"]
     models, cs = res / "models" / "structural", sc["corrector_steps"]
     obs = str(res / "tables" / "structural_observation.csv")
-    p = {k: out / v for k, v in OUTPUTS.items()}
+    p = {k: out / Path(v).with_suffix("") for k, v in OUTPUTS.items()}
     for f in p.values():
         f.parent.mkdir(parents=True, exist_ok=True)
     ed, samples = str(encoder_decoder), str(out / "structural" / "manifold_samples.parquet")
@@ -104,12 +111,15 @@ def evaluate(encoder_decoder: Path, out: Path, run: Path, cfg: dict, seed: int) 
                    traces=str(out / "structural" / "missing_data_trajectories.csv"), simulator=sim,
                    missing=sc["missing"], n_flow_samples=sc["missing_flow_samples"], top_k=sc["missing_top"],
                    n_latent=sc["missing_latent"], seed=seed, corrector_steps=cs)
-    return {"stiffness": str(res / "stiffness" / "sr_extremes.csv"),
-            "structural_emulator": str(res / "tables" / "structural_emulator_validation.csv"),
-            "ehr_emulator": str(res / "training" / "ehr" / "emulator_l2_errors.json"),
-            "ehr_errors": str(res / "tables" / "ehr_error_per_output.csv"),
-            "structural_inversion": f"{p['structural_inversion']}.csv", "manifold": f"{p['manifold']}.json",
-            "svd": f"{p['svd']}.json", "missing": f"{p['missing']}.json"}
+    return headline_files(run, out)
+
+
+def headline_files(run: Path, out: Path | None = None) -> dict[str, str]:
+    """The scorecard's headline files: those of the evaluations under ``out`` (the run's own
+    when None), the others the run's."""
+    res = run / "results"
+    return {**{k: str(res / v) for k, v in RUN_FILES.items()},
+            **{k: str((out or res) / v) for k, v in OUTPUTS.items()}}
 
 
 def headline_ratios(files: dict[str, str]) -> dict[str, float]:
@@ -135,16 +145,18 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--run", type=Path, required=True, help="a finished run's folder (its results/ beside config)")
-    p.add_argument("--seed", type=int, default=2024, help="the run's seed")
+    p.add_argument("--seed", type=int, default=None, help="the run's seed (default: the config's)")
     p.add_argument("--epochs", type=int, nargs="+", required=True, help="total epochs E of each continuation")
     p.add_argument("--work", type=Path, required=True, help="where the continuations go (kept: a rerun resumes)")
     p.add_argument("--jobs", type=int, default=2)
-    p.add_argument("--config", type=Path, default=ROOT / "config" / "config.yaml")
+    p.add_argument("--config", type=Path, default=None, help="the run's config (default <run>/config/config.yaml)")
     p.add_argument("--name", default="continuation_epochs")
     results_io.add_note_argument(p)
     args = p.parse_args(argv)
     run = results_io.Run(None if argv is None else ["benchmarks/continuation_epochs.py", *argv])
-    cfg = yaml.safe_load(args.config.read_text())
+    cfg = yaml.safe_load((args.config or args.run / "config" / "config.yaml").read_text())
+    args.seed = int(cfg["seed"]) if args.seed is None else args.seed
+    args.epochs = sorted(set(args.epochs))
     hyper = dict(cfg["training"]["studies"]["structural"]["encoder_decoder"])
     r = int(hyper["restart_epochs"])
     if min(args.epochs) <= r:
@@ -154,19 +166,25 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     run_ckpt = torch.load(models / "encoder_decoder_delta0.pt.ckpt", map_location="cpu", weights_only=True)
     restart = run_ckpt["extra"]["restart"]
     cand = models / f"encoder_decoder_delta0.pt.ckpt.candidate{restart['chosen']}"
+    run_row = {"model": "run", "epochs": int(hyper["epochs"]),
+               **training_summary(res / "training" / "structural" / "encoder_decoder_delta0_losses.csv", r),
+               **headline_ratios(evaluate(models / "encoder_decoder_delta0.pt", args.work / "run", args.run, cfg,
+                                          args.seed))}
+    off = {k: [run_row[k], v] for k, v in headline_ratios(headline_files(args.run)).items()
+           if not math.isclose(run_row[k], v, rel_tol=1e-9)}
+    if off:  # another config, code or floating-point path than the run's: the rows are not comparable
+        print(f"WARNING: the run's model evaluated here differs from its own headline files: {off}", file=sys.stderr)
     jobs = [(e, args.work / f"epochs{e}", data, models / "emulator.pt", hyper, args.seed, cand, restart)
             for e in args.epochs]
     with mp.get_context("spawn").Pool(min(args.jobs, len(jobs))) as pool:
         trained = {e: (cpu, n) for e, cpu, n in pool.imap_unordered(continue_candidate, jobs)}
-    rows = []
-    for e in [int(hyper["epochs"]), *args.epochs]:
-        is_run = e == int(hyper["epochs"]) and e not in args.epochs
-        out = args.work / ("run" if is_run else f"epochs{e}")
-        ed = models / "encoder_decoder_delta0.pt" if is_run else out / "models" / "encoder_decoder_delta0.pt"
-        losses = res / "training" / "structural" / "encoder_decoder_delta0_losses.csv" if is_run else \
-            out / "encoder_decoder_delta0_losses.csv"
-        rows.append({"model": "run" if is_run else "continued here", "epochs": e, **training_summary(losses, r),
-                     **headline_ratios(evaluate(ed, out, args.run, cfg, args.seed))})
+    rows = [run_row]
+    for e in args.epochs:
+        out = args.work / f"epochs{e}"
+        rows.append({"model": "continued here", "epochs": e,
+                     **training_summary(out / "encoder_decoder_delta0_losses.csv", r),
+                     **headline_ratios(evaluate(out / "models" / "encoder_decoder_delta0.pt", out, args.run, cfg,
+                                                args.seed))})
     table = pd.DataFrame(rows)
     with pd.option_context("display.width", 250, "display.max_columns", 30):
         print(table.to_string(index=False, float_format="%.4g"))
@@ -179,7 +197,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
              [results_io.table(table, "continuations", "Per total epochs E.", FORMATS)],
              parameters={"run": results_io.portable(str(args.run.resolve())), "seed": args.seed, "epochs": args.epochs,
                          "chosen_candidate": restart["chosen"], "restart_epochs": r, "hyper": hyper,
-                         "trained_here": {str(e): {"cpu_s": c, "epochs": n} for e, (c, n) in trained.items()}},
+                         "trained_here": {str(e): {"cpu_s": c, "epochs": n} for e, (c, n) in trained.items()},
+                         "run_row_differs_from_run": off},
              note=args.note)
     return table
 

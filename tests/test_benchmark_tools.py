@@ -244,11 +244,13 @@ def test_continuation_epochs_summary_keeps_the_best_tested_epoch_and_counts_cpu_
     # the kept weights: the lowest tested loss (epoch 4); CPU of the epochs after the choice (2) only
     assert ce.training_summary(tmp_path / "losses.csv", 2) == {"best_epoch": 4, "best_test_loss": 5.0,
                                                                 "continuation_cpu_s": 10.0}
-    # every headline it reports is one the scorecard reads from the files it writes
+    # the scorecard's every headline file: the evaluations' under a folder of their own, the rest the run's
     from cvsim6.reporting import scorecard
 
-    assert set(ce.OUTPUTS) | {"stiffness", "structural_emulator", "ehr_emulator", "ehr_errors"} == \
-        set(scorecard.HEADLINE_FILES)
+    files = ce.headline_files(Path("run"), Path("work"))
+    assert set(files) == set(scorecard.HEADLINE_FILES)
+    assert {k for k, f in files.items() if f.startswith("work")} == set(ce.OUTPUTS)
+    assert all(f.startswith("run/results/") for f in ce.headline_files(Path("run")).values())
 
 
 def test_ehr_network_swap_ratio_counts_only_outputs_seen_in_more_than_ten_patients():

@@ -567,7 +567,12 @@ def test_a_candidate_continued_under_a_shorter_schedule_resumes_at_the_choice(da
     losses = pd.read_csv(out / "encoder_decoder_delta0_losses.csv")
     assert losses["epoch"].tolist() == [1, 2, 3, 4, 5]
     pd.testing.assert_frame_equal(_drop_timing(losses.iloc[:2]), _drop_timing(pd.read_csv(f"{ckpt}.csv")))
-    assert losses["lr"].iloc[-1] == pytest.approx(0.1 * hyper["lr"])  # the 5-epoch cosine's end
+    def cosine(epoch, total):  # warmup 0, lr_final 0.1 (optimization.make_scheduler)
+        return hyper["lr"] * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * epoch / (total - 1))))
+
+    # epoch 3 at the rate the 8-epoch cosine set after epoch 2 (restored with the optimizer), then the 5-epoch one
+    assert losses["lr"].iloc[2:].tolist() == pytest.approx([cosine(2, 8), cosine(3, 5), cosine(4, 5)])
+    assert losses["lr"].iloc[-1] == pytest.approx(0.1 * hyper["lr"])
     saved = torch.load(out / "models" / "encoder_decoder_delta0.pt", weights_only=True)["info"]
     assert saved["epochs_done"] == 5 and saved["restart"] == restart
     # the fingerprint is the one a 5-epoch run writes, and differs from the 8-epoch run's

@@ -37,18 +37,16 @@ if __name__ == "__main__":  # one BLAS thread per process (not when a test impor
 import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
 
+from cvsim6.reporting import headline_files as layout  # noqa: E402
+from cvsim6.reporting.headline_files import PER_NETWORKS  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The scorecard's headlines that the structural encoder/decoder moves.
 HEADLINES = ("structural_inversion_mean", "structural_inversion_max", "manifold_l2", "manifold_l2_resampled",
              "svd_modes", "missing_l2")
-#: Where each evaluation writes, under a model's folder (the workflow's layout of a network source).
-OUTPUTS = {"structural_inversion": "tables/structural_inversion_errors.csv",
-           "manifold": "tables/structural_manifold_reconstruction.json", "svd": "structural/manifold_svd.json",
-           "missing": "tables/structural_missing_data.json"}
-#: The run's headline files the encoder/decoder does not move (under its results/).
-RUN_FILES = {"stiffness": "stiffness/sr_extremes.csv",
-             "structural_emulator": "tables/structural_emulator_validation.csv",
-             "ehr_emulator": "training/ehr/emulator_l2_errors.json", "ehr_errors": "tables/ehr_error_per_output.csv"}
+#: The headline files the structural encoder/decoder moves, written by :func:`evaluate` under a
+#: model's folder in the workflow's layout of a network source; the others are the run's.
+EVALUATED = ("structural_inversion", "manifold", "svd", "missing")
 FORMATS = {"continuation_cpu_s": ".0f", "best_test_loss": ".2f", **{f"{h} / paper": ".3f" for h in HEADLINES}}
 
 
@@ -90,7 +88,7 @@ def evaluate(encoder_decoder: Path, out: Path, run: Path, cfg: dict, seed: int) 
     res, sc, sim = run / "results", cfg["structural_study"], cfg["simulator"]
     models, cs = res / "models" / "structural", sc["corrector_steps"]
     obs = str(res / "tables" / "structural_observation.csv")
-    p = {k: out / Path(v).with_suffix("") for k, v in OUTPUTS.items()}
+    p = {k: out / Path(PER_NETWORKS[k]).with_suffix("") for k in EVALUATED}
     for f in p.values():
         f.parent.mkdir(parents=True, exist_ok=True)
     ed, samples = str(encoder_decoder), str(out / "structural" / "manifold_samples.parquet")
@@ -115,11 +113,11 @@ def evaluate(encoder_decoder: Path, out: Path, run: Path, cfg: dict, seed: int) 
 
 
 def headline_files(run: Path, out: Path | None = None) -> dict[str, str]:
-    """The scorecard's headline files: those of the evaluations under ``out`` (the run's own
+    """The scorecard's headline files: those of :data:`EVALUATED` under ``out`` (the run's own
     when None), the others the run's."""
     res = run / "results"
-    return {**{k: str(res / v) for k, v in RUN_FILES.items()},
-            **{k: str((out or res) / v) for k, v in OUTPUTS.items()}}
+    files = layout.headline_files(str(res), str(res))
+    return {**files, **({k: str(out / PER_NETWORKS[k]) for k in EVALUATED} if out else {})}
 
 
 def headline_ratios(files: dict[str, str]) -> dict[str, float]:

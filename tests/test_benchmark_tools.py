@@ -249,7 +249,9 @@ def test_continuation_epochs_summary_keeps_the_best_tested_epoch_and_counts_cpu_
 
     files = ce.headline_files(Path("run"), Path("work"))
     assert set(files) == set(scorecard.HEADLINE_FILES)
-    assert {k for k, f in files.items() if f.startswith("work")} == set(ce.OUTPUTS)
+    assert {k for k, f in files.items() if f.startswith("work")} == set(ce.EVALUATED)
+    assert files["svd"] == "work/structural/manifold_svd.json"
+    assert files["stiffness"] == "run/results/stiffness/sr_extremes.csv"
     assert all(f.startswith("run/results/") for f in ce.headline_files(Path("run")).values())
 
 

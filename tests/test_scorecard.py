@@ -1,10 +1,13 @@
 """The reproduction scorecard's arithmetic on tables with known answers."""
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from cvsim6 import paper_values
 from cvsim6.reporting import scorecard
+from cvsim6.reporting.headline_files import headline_files
 from cvsim6.registry import OUTPUT_NAMES
 
 
@@ -47,10 +50,11 @@ def _paper_files(tmp_path) -> dict:
     rows = []
     for instant, ref in paper_values.STIFFNESS_EXTREMES.items():
         rows += [(instant, f"lambda_{j + 1} (1/s)", lam, lam) for j, lam in enumerate(ref["lambdas"])]
-    files = {"stiffness": tmp_path / "st.csv", "structural_emulator": tmp_path / "e.csv",
-             "structural_inversion": tmp_path / "i.csv", "manifold": tmp_path / "m.json",
-             "svd": tmp_path / "s.json", "missing": tmp_path / "x.json", "ehr_emulator": tmp_path / "l2.json",
-             "ehr_errors": tmp_path / "ek.csv"}
+    # in the workflow's layout, of a seed's networks: shared files under results/, the others under its root
+    results = tmp_path / "results"
+    files = {k: Path(f) for k, f in headline_files(str(results), str(results / "seeds" / "7")).items()}
+    for f in files.values():
+        f.parent.mkdir(parents=True, exist_ok=True)
     pd.DataFrame(rows, columns=["Instant", "Quantity", "This work", "Paper"]).to_csv(files["stiffness"], index=False)
     paper_table.to_csv(files["structural_emulator"], index=False)
     paper_table.to_csv(files["structural_inversion"], index=False)
@@ -65,6 +69,9 @@ def _paper_files(tmp_path) -> dict:
 def test_scorecard_of_a_source_equal_to_the_paper(tmp_path):
     """A source whose every number is the paper's gets ratio 1 on every headline."""
     files = _paper_files(tmp_path)
+    assert tuple(files) == scorecard.HEADLINE_FILES
+    assert files["stiffness"] == tmp_path / "results/stiffness/sr_extremes.csv"
+    assert files["svd"] == tmp_path / "results/seeds/7/structural/manifold_svd.json"
     missing_other = {k: str(tmp_path / "absent" / p.name) for k, p in files.items()}
     scorecard.write_scorecard(str(tmp_path / "card.csv"), str(tmp_path / "card.md"), "trained",
                               {"published": missing_other}, **{k: str(v) for k, v in files.items()})

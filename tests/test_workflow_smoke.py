@@ -27,6 +27,7 @@ from cvsim6.data import priors
 from cvsim6 import registry
 from cvsim6.model import solver
 from cvsim6.model.equations import outside_domain
+from cvsim6.reporting.headline_files import headline_files
 
 SMOKE = ["--configfile", "config/smoke.yaml", "local.yaml"]
 #: Without the local EHR data (which target ``all`` needs) the training and structural stages run alone.
@@ -391,8 +392,7 @@ def test_seeds_target_trains_each_seed_on_the_shared_data(trained_run):
     roots = {0: work / "results", 1: seed1}
     table = pd.read_csv(work / "results/report/seeds.csv").set_index("key")
     for seed, root in roots.items():
-        files = {k: str(root / p) for k, p in HEADLINES_UNDER_ROOT.items()}
-        files["stiffness"] = str(work / "results/stiffness/sr_extremes.csv")
+        files = headline_files(str(work / "results"), str(root))
         values, _ = sc.headline_values(files)
         for key in table.index:
             assert table.loc[key, f"seed {seed}"] == pytest.approx(values[key], rel=1e-12, nan_ok=True), key
@@ -410,14 +410,3 @@ def test_seeds_target_trains_each_seed_on_the_shared_data(trained_run):
         pd.testing.assert_series_equal(card.loc[spread.index, f"trained {stat} over seeds / paper"],
                                        spread[f"{stat} / paper"], check_names=False)
 
-
-#: The scorecard's files under a network results root (as headline_files in common.smk).
-HEADLINES_UNDER_ROOT = {
-    "structural_emulator": "tables/structural_emulator_validation.csv",
-    "structural_inversion": "tables/structural_inversion_errors.csv",
-    "manifold": "tables/structural_manifold_reconstruction.json",
-    "svd": "structural/manifold_svd.json",
-    "missing": "tables/structural_missing_data.json",
-    "ehr_emulator": "training/ehr/emulator_l2_errors.json",
-    "ehr_errors": "tables/ehr_error_per_output.csv",
-}

@@ -62,11 +62,21 @@ def report_study(wildcards):
 #: the paper's published networks (networks.source: published).
 NET_MARK = ", published networks" if NETWORK_SOURCE == "published" else ""
 
-_spec = importlib.util.spec_from_file_location(
-    "cvsim6_codegraph", f"{PACKAGE_DIR}/workflow/codegraph.py"
-)
-_codegraph = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_codegraph)
+
+def load_package_file(module):
+    """The package module ``module`` (a path under the package, without .py) loaded from its
+    file: for the few that import nothing of the package, so that the workflow does not
+    import the package itself."""
+    spec = importlib.util.spec_from_file_location(
+        f"cvsim6_{Path(module).name}", f"{PACKAGE_DIR}/{module}.py"
+    )
+    loaded = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(loaded)
+    return loaded
+
+
+_codegraph = load_package_file("workflow/codegraph")
+_headlines = load_package_file("reporting/headline_files")
 
 
 def code_for(function):
@@ -163,18 +173,9 @@ def published_dir(wildcards=None):
 
 
 def headline_files(root):
-    """The workflow outputs under the network results ``root`` that the scorecard reads
-    (cvsim6.reporting.scorecard.HEADLINE_FILES); the stiffness analysis is shared."""
-    return dict(
-        stiffness=f"{RESULTS}/stiffness/sr_extremes.csv",
-        structural_emulator=f"{root}/tables/structural_emulator_validation.csv",
-        structural_inversion=f"{root}/tables/structural_inversion_errors.csv",
-        manifold=f"{root}/tables/structural_manifold_reconstruction.json",
-        svd=f"{root}/structural/manifold_svd.json",
-        missing=f"{root}/tables/structural_missing_data.json",
-        ehr_emulator=f"{root}/training/ehr/emulator_l2_errors.json",
-        ehr_errors=f"{root}/tables/ehr_error_per_output.csv",
-    )
+    """The workflow outputs under the network results ``root`` that the scorecard reads, the
+    shared stiffness analysis included (cvsim6.reporting.headline_files)."""
+    return _headlines.headline_files(RESULTS, root)
 
 
 def scorecard_files(source):

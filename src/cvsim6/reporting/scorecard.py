@@ -2,7 +2,7 @@
 
 A *source* is where the networks come from: ``trained`` by this workflow or
 ``published`` (the paper's own networks run through this project's code). Each source's
-headlines are read from the workflow outputs it produced (``headline_files``); the
+headlines are read from the workflow outputs it produced (:mod:`cvsim6.reporting.headline_files`); the
 scorecard lists each headline with the paper's value, each source's value and its ratio
 to the paper, and where it comes from in the paper and in ``results/``.
 
@@ -24,11 +24,9 @@ import pandas as pd
 
 from cvsim6 import paper_values
 from cvsim6.registry import OUTPUT_NAMES
+from cvsim6.reporting.headline_files import HEADLINE_FILES
 from cvsim6.table_files import to_markdown
 
-#: The workflow outputs a source's headlines are read from (keys of ``headline_files``).
-HEADLINE_FILES = ("stiffness", "structural_emulator", "structural_inversion", "manifold", "svd",
-                  "missing", "ehr_emulator", "ehr_errors")
 #: Outputs count in the e_k headlines when observed in more than this many patients.
 MIN_PATIENTS_EXCLUSIVE = 10
 #: Tolerances the summary line counts against (max(r, 1/r)).

@@ -22,7 +22,7 @@ if workflow.modifier.is_main_snakefile():
                 seed_config(seed)
             replace_prefix:
                 seed_paths(seed)
-        # the rules behind the scorecard's headlines (cvsim6.reporting.scorecard.HEADLINE_FILES),
+        # the rules behind the scorecard's headlines (cvsim6.reporting.headline_files),
         # from one load of the module (snakefmt 2.1 cannot parse a list of rules here)
         # fmt: off
         use rule train_emulator, train_flow, train_encoder_decoder_candidate, train_encoder_decoder, emulator_validation, emulator_l2_errors, structural_inversion_table, structural_observation, structural_manifold, structural_reconstruction, structural_manifold_svd, structural_missing_data, invert_ehr_patients, ehr_error_table from seed_module as seed_rule_prefix*

@@ -14,7 +14,7 @@ Per noise level it times, on one torch thread (``time.process_time``):
 
     .venv/bin/python benchmarks/algorithm1.py --root <run checkout> --noise-levels 0.25 0.5 1 2
 
-Output: the tables on stdout, and ``benchmarks/results/algorithm1.json``.
+Output: the tables on stdout, and ``benchmarks/results/algorithm1.json`` (``--name`` for another).
 """
 from __future__ import annotations
 
@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     parser.add_argument("--high", type=int, default=5_100_000, help="flow samples per patient, the paper's")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--seed", type=int, default=2024, help="the run's master seed")
+    parser.add_argument("--name", default="algorithm1", help="result file name, under benchmarks/results/")
     import results_io
     import torch
 
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     timing, errors = measure(args.root.resolve(), args.noise_levels, args.low, args.high, settings)
     print(timing.to_string(float_format="%.4g"))
     print(errors.to_string(float_format="%.4g"))
-    run.save("algorithm1", "Algorithm 1: CPU time per patient and e_k at two flow-sample counts",
+    run.save(args.name, "Algorithm 1: CPU time per patient and e_k at two flow-sample counts",
              f"Algorithm 1 on the EHR patients with a finished run's networks, one torch thread: the completion "
              f"step alone with one sample stream per patient against one stream shared by all patients, and the "
              f"whole inversion (completion, {settings['n_latent']} latent draws decoded, emulation, OOD score) at "

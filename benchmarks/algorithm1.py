@@ -14,6 +14,9 @@ Per noise level it times, on one torch thread (``time.process_time``):
 
     .venv/bin/python benchmarks/algorithm1.py --root <run checkout> --noise-levels 0.25 0.5 1 2
 
+The inversion settings (latent draws, OOD reference, corrector rounds, M by default) and the
+seed are the run's config's (``--config``, default ``<root>/config/config.yaml``).
+
 Output: the tables on stdout, and ``benchmarks/results/algorithm1.json`` (``--name`` for another).
 """
 from __future__ import annotations
@@ -100,23 +103,39 @@ def measure(root: Path, deltas: list[float], low: int, high: int, settings: dict
     return pd.DataFrame(timing), pd.DataFrame(errors)
 
 
+#: The workflow's Algorithm 1 settings (config ``ehr_study``) the inversion takes besides M.
+SETTINGS = ("n_latent", "n_reference", "reference_flow_samples", "corrector_steps")
+
+
+def inversion_settings(cfg: dict, seed: int | None = None) -> dict:
+    """The EHR inversion's settings of the workflow config ``cfg`` (:data:`SETTINGS`), with the
+    master ``seed`` (default: the config's)."""
+    study = cfg["ehr_study"]
+    return {"seed": int(cfg["seed"] if seed is None else seed), **{k: int(study[k]) for k in SETTINGS}}
+
+
 def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--root", type=Path, default=Path("."), help="a finished run's checkout")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="the run's config (default <root>/config/config.yaml)")
     parser.add_argument("--noise-levels", type=float, nargs="+", default=[0.25, 0.5, 1.0, 2.0])
-    parser.add_argument("--low", type=int, default=200_000, help="flow samples per patient, the default")
+    parser.add_argument("--low", type=int, default=None, help="flow samples per patient (default: the config's)")
     parser.add_argument("--high", type=int, default=5_100_000, help="flow samples per patient, the paper's")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
-    parser.add_argument("--seed", type=int, default=2024, help="the run's master seed")
+    parser.add_argument("--seed", type=int, default=None, help="the run's master seed (default: the config's)")
     parser.add_argument("--name", default="algorithm1", help="result file name, under benchmarks/results/")
     import results_io
     import torch
+    import yaml
 
     results_io.add_note_argument(parser)
     args = parser.parse_args(argv)
     run = results_io.Run(None if argv is None else ["benchmarks/algorithm1.py", *argv])
     torch.set_num_threads(args.threads)
-    settings = dict(seed=args.seed, n_latent=100, n_reference=100, reference_flow_samples=4096, corrector_steps=2)
+    cfg = yaml.safe_load((args.config or args.root / "config" / "config.yaml").read_text())
+    settings = inversion_settings(cfg, args.seed)
+    args.low = int(cfg["ehr_study"]["n_flow_samples"]) if args.low is None else args.low
     timing, errors = measure(args.root.resolve(), args.noise_levels, args.low, args.high, settings)
     print(timing.to_string(float_format="%.4g"))
     print(errors.to_string(float_format="%.4g"))

@@ -275,3 +275,22 @@ def test_ehr_network_swap_ratio_counts_only_outputs_seen_in_more_than_ten_patien
     assert ratio == pytest.approx(float(np.exp(np.mean(np.log(list(factors.values()))))))
     e_k["e_k"] *= 3.0
     assert sw.ek_ratio(e_k, 0.5)[0] == pytest.approx(3.0 * ratio)
+
+
+def test_algorithm1_inverts_with_the_workflow_configs_settings():
+    """The benchmark's inversion settings are the config's ehr_study ones, named as the
+    inversion function takes them (no second copy of the workflow's values)."""
+    import inspect
+
+    import yaml
+
+    from cvsim6.studies.ehr import invert_observations
+
+    a1 = _load("algorithm1")
+    cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    cfg["ehr_study"]["n_latent"] = 37  # a value of this config, not a default of the script
+    settings = a1.inversion_settings(cfg)
+    assert settings["n_latent"] == 37 and settings["seed"] == cfg["seed"]
+    assert settings["corrector_steps"] == cfg["ehr_study"]["corrector_steps"]
+    assert a1.inversion_settings(cfg, seed=7)["seed"] == 7
+    assert set(settings) <= set(inspect.signature(invert_observations).parameters)

@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     timing, errors = measure(args.root.resolve(), args.noise_levels, args.low, args.high, settings)
     print(timing.to_string(float_format="%.4g"))
     print(errors.to_string(float_format="%.4g"))
-    run.save(args.name, "Algorithm 1: CPU time per patient and e_k at two flow-sample counts",
+    levels = "" if args.name == "algorithm1" else f" (noise levels {', '.join(f'{d:g}' for d in args.noise_levels)})"
+    run.save(args.name, f"Algorithm 1: CPU time per patient and e_k at two flow-sample counts{levels}",
              f"Algorithm 1 on the EHR patients with a finished run's networks, one torch thread: the completion "
              f"step alone with one sample stream per patient against one stream shared by all patients, and the "
              f"whole inversion (completion, {settings['n_latent']} latent draws decoded, emulation, OOD score) at "

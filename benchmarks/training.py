@@ -5,7 +5,8 @@ seed under several schedules, each for the same CPU-time budget (one thread per 
 ``--jobs`` processes side by side), and prints the held-out error each reached at fractions of
 the budget. Schedules: ``ours`` (config/config.yaml), ``paper`` (config/paper.yaml, cut off
 at the budget, so its learning rate has decayed less), and any ``--variant NAME='{yaml}'``
-(keys merged onto ``ours``, e.g. a cosine schedule or float64).
+(keys merged onto ``ours``, e.g. a cosine schedule or float64). A schedule whose loss turns
+non-finite stops there; its table row names that epoch (``diverged at epoch``, 0: none).
 
 Held-out error: the loss on the test split (12,500 rows, never trained on), per network --
 emulator: MSE of the standardized outputs; flow: negative log-likelihood (nats); encoder/decoder:
@@ -59,14 +60,20 @@ def _run(job: tuple) -> pd.DataFrame:
         out = {k: str(Path(tmp) / f) for k, f in (("model", "m.pt"), ("losses", "l.csv"))}
         common = dict(train=str(data / "train.parquet"), test=str(data / "test.parquet"), hyper=hyper, seed=seed,
                       device="cpu", threads=1, progress=False, max_cpu_seconds=seconds, checkpoint_every=10**9, **out)
-        if network == "emulator":
-            training.train_emulator(**common)
-        elif network == "flow":
-            training.train_flow(noise_level=delta, **common)
-        else:
-            training.train_encoder_decoder(emulator=emulator, noise_level=delta, **common)
+        diverged = False
+        try:
+            if network == "emulator":
+                training.train_emulator(**common)
+            elif network == "flow":
+                training.train_flow(noise_level=delta, **common)
+            else:
+                training.train_encoder_decoder(emulator=emulator, noise_level=delta, **common)
+        except FloatingPointError as exc:  # diverged: its losses file ends with the failed epoch
+            print(f"{name}: {exc}")
+            diverged = True
         df = pd.read_csv(out["losses"])
     df.insert(0, "schedule", name)
+    df["diverged_at_epoch"] = int(df["epoch"].iloc[-1]) if diverged else 0
     df["cpu_seconds_total"] = df["cpu_seconds"].cumsum()
     return df
 
@@ -76,7 +83,8 @@ def reached(df: pd.DataFrame, metric: str, fractions: list[float], budget: float
     rows = []
     for name, g in df.groupby("schedule", sort=False):
         g = g[np.isfinite(g[metric])]
-        row = {"schedule": name, "epochs": int(g["epoch"].max()) if len(g) else 0}
+        row = {"schedule": name, "epochs": int(g["epoch"].max()) if len(g) else 0,
+               "diverged at epoch": int(g["diverged_at_epoch"].max()) if "diverged_at_epoch" in g else 0}
         for f in fractions:
             within = g[g["cpu_seconds_total"] <= f * budget * 1.02][metric]
             row[f"{f:g} x budget"] = float(within.min()) if len(within) else math.nan
@@ -178,7 +186,7 @@ def main() -> None:
         f"(config/paper.yaml, cut off at the budget) and any variant (keys merged onto ours). Best {label} "
         f"reached within fractions of the budget; the curves are in the file.",
         [results_io.table(table, "reached", f"Best {label} within each fraction of the CPU budget per schedule.",
-                          {c: ".4g" for c in table.columns if c not in ("schedule", "epochs")}),
+                          {c: ".4g" for c in table.columns if c not in ("schedule", "epochs", "diverged at epoch")}),
          results_io.table(curves(df, metric), "curves", f"Best-so-far {label} against CPU seconds, per schedule "
                           f"(thinned).", {}, page=False)],
         parameters={"study": args.study, "network": args.network, "cpu_seconds_per_schedule": args.seconds,

@@ -294,3 +294,16 @@ def test_algorithm1_inverts_with_the_workflow_configs_settings():
     assert settings["corrector_steps"] == cfg["ehr_study"]["corrector_steps"]
     assert a1.inversion_settings(cfg, seed=7)["seed"] == 7
     assert set(settings) <= set(inspect.signature(invert_observations).parameters)
+
+
+def test_training_benchmark_reports_a_diverged_schedules_epoch_and_its_best_before():
+    tb = _load("training")
+    df = pd.DataFrame({"schedule": ["ours"] * 3 + ["cap"] * 4, "epoch": [1, 2, 3, 1, 2, 3, 4],
+                       "test_decoder": [0.5, 0.4, float("nan"), 0.5, 0.3, 0.2, 0.25],
+                       "cpu_seconds_total": [1.0, 2.0, 3.0, 1.0, 2.0, 3.0, 4.0],
+                       "diverged_at_epoch": [3] * 3 + [0] * 4})
+    table = tb.reached(df, "test_decoder", [0.5, 1.0], 4.0).set_index("schedule")
+    assert table.loc["ours", "diverged at epoch"] == 3 and table.loc["cap", "diverged at epoch"] == 0
+    # the best finite error within each fraction of the 4 CPU-s budget
+    assert table.loc["ours", "0.5 x budget"] == 0.4 and table.loc["ours", "1 x budget"] == 0.4
+    assert table.loc["cap", "0.5 x budget"] == 0.3 and table.loc["cap", "1 x budget"] == 0.2

@@ -123,9 +123,9 @@ def test_configs_merged_as_snakemake_does_give_valid_training_options(name):
                     assert h["variance_floor"] is None and h["relative_weight"] == 0, study
                     assert not h["linear_skip"] and not h["log_inputs"], study
                 if net == "encoder_decoder":  # the paper's constant KL weight, one initialization,
-                    # standardized parameters (not their logarithms)
+                    # standardized parameters (not their logarithms), an uncapped log-variance
                     assert h["kl_warmup_epochs"] == 0 and h["restart_target"] is None, study
-                    assert not h["log_parameters"], study
+                    assert not h["log_parameters"] and h["logvar_max"] is None, study
                 # a key not stated in paper.yaml comes from config.yaml: only those inert under the paper's
                 # schedule (cosine warm-up, restart epochs) or the paper's code's own (the flow's clipping)
                 inherited = set(nets[net]) - set(own[study][net])

@@ -914,6 +914,34 @@ def test_a_logvar_cap_never_reached_trains_bit_for_bit_as_none(data, emulator, t
     assert not runs["low"][0]["train_loss"].equals(runs["none"][0]["train_loss"])
 
 
+@pytest.mark.parametrize("cap", [None, 4.0])
+def test_logvar_cap_keeps_a_spiked_encoders_test_loss_finite(cap):
+    """The failure of decision 0031: an encoder whose raw log-variance leaves float32's range for
+    some rows. Uncapped, sigma = exp(logvar / 2) overflows and the test loss is not finite; capped,
+    the test KL is the closed form at the cap and every term stays finite."""
+    rng = np.random.default_rng(7)
+    v, y = rng.normal(size=(40, 23)), rng.normal(size=(40, 16))
+    torch.manual_seed(0)
+    emu = nw.Emulator(hidden=8, layers=2)
+    encdec = nw.EncoderDecoder(latent_dim=3, encoder_hidden=8, encoder_layers=2, decoder_hidden=8,
+                               decoder_layers=2, logvar_max=cap)
+    h = hp.check_hyper("encoder_decoder", ENCDEC | {"logvar_max": cap})
+    st = EncoderDecoderStage(encdec, emu, v, y, v, y, 0.5, h, torch.Generator().manual_seed(1), torch.device("cpu"))
+    last = encdec.encoder[-1]
+    with torch.no_grad():
+        last.weight[3:].zero_()  # rows 3..5 of the output are the log-variances
+        last.bias[3:] = 200.0  # exp(100) overflows float32
+    loss, parts = st.evaluate()
+    if cap is None:
+        assert not math.isfinite(loss)
+        return
+    assert math.isfinite(loss) and all(math.isfinite(p) for p in parts.values())
+    with torch.no_grad():
+        mu = encdec.encode(st.v_te)[0].double()
+    closed_form = 0.5 * ((mu * mu).sum(1) + 3 * (math.exp(cap) - cap - 1.0)).mean()
+    assert parts["kl"] == pytest.approx(float(closed_form), rel=1e-5)
+
+
 def test_kl_warmup_ramps_the_training_kl_weight_only(data, emulator, tmp_path):
     """Training losses weigh the KL term by beta_v * e / k in epochs e = 1..k, then beta_v; the
     test losses (hence keep_best) always by the full beta_v."""

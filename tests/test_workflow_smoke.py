@@ -410,3 +410,57 @@ def test_seeds_target_trains_each_seed_on_the_shared_data(trained_run):
         pd.testing.assert_series_equal(card.loc[spread.index, f"trained {stat} over seeds / paper"],
                                        spread[f"{stat} / paper"], check_names=False)
 
+
+@needs_local_ehr
+def test_references_run_on_the_smoke_networks(trained_run):
+    """Target ``references`` (Sobol indices, MCMC posteriors, their comparison with inVAErt and
+    NPE) in the tree of ``all`` and ``calibration``: it reruns none of their jobs."""
+    work = trained_run
+    dry = snakemake("-n", "references", *SMOKE, cwd=work)
+    assert set(planned_rules(dry.stdout + dry.stderr)) == {
+        "sobol_prior", "sobol_heatmap", "sobol_tables", "sensitivity_identifiability", "reference_cases",
+        "reference_mcmc", "reference_diagnostics", "reference_comparison", "reference_marginals", "references"}
+    proc = snakemake("--cores", "2", "references", *SMOKE, cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    tables = work / "results" / "tables"
+    sobol = pd.read_csv(tables / "sensitivity_sobol.csv")
+    assert list(sobol.columns[:7]) == ["prior", "output", "parameter", "S1", "S1_conf", "ST", "ST_conf"]
+    assert len(sobol) == 2 * 16 * 23
+    hr = sobol[(sobol["output"] == "Hr") & (sobol["parameter"] != "Hr")]
+    assert (hr[["S1", "ST"]].abs() < 1e-12).all().all()  # the Hr output is the Hr parameter
+    diag = pd.read_csv(tables / "reference_posterior_diagnostics.csv")
+    assert list(diag.columns[:6]) == ["case", "kind", "rhat_max", "ess_min", "n_samples", "cpu_seconds"]
+    assert list(diag["case"]) == ["sim0", "sim1", "ehr0"]
+    assert list(diag["kind"]) == ["simulated", "simulated", "patient"]
+    # 60 steps at most, the second half kept, 48 walkers; tiny chains cannot reach the targets
+    assert (diag["n_samples"] == 48 * 30).all() and (diag["steps"] == 60).all()
+    assert (diag["cpu_seconds"] > 0).all() and not diag["converged"].any()
+    assert (diag["not converged"].str.len() > 0).all()
+    comp = pd.read_csv(tables / "reference_posteriors.csv")
+    assert list(comp.columns[:3]) == ["case", "method", "c2st"]
+    assert len(comp) == 3 * 2 and set(comp["method"]) == {"inVAErt", "NPE"}
+    assert comp["c2st"].between(0, 1).all()
+    # the patient's reference conditions on its observed outputs only
+    cases = pd.read_csv(work / "results/references/cases.csv")
+    ehr0 = cases.set_index("case").loc["ehr0"]
+    observed = int(ehr0[[f"y_{n}" for n in registry.OUTPUT_NAMES]].notna().sum())
+    assert int(diag.set_index("case").at["ehr0", "observed_outputs"]) == observed < 16
+    assert cases.set_index("case").loc["ehr0", [f"theta_{n}" for n in registry.PARAMETER_NAMES]].isna().all()
+    # the simulated cases are the calibration stage's, with its noisy observations
+    cal = np.load(work / "results/calibration/samples_delta0.5.npz")
+    np.testing.assert_array_equal(cases.loc[:1, [f"y_{n}" for n in registry.OUTPUT_NAMES]].to_numpy(), cal["y_obs"][:2])
+    ident = pd.read_csv(tables / "sensitivity_identifiability.csv")
+    assert list(ident["Parameter"]) == list(registry.PARAMETER_NAMES) and set(ident["agree"]) <= {"yes", "no"}
+    for rel in ("references/sobol_structural.png", "references/sobol_ehr.pdf", "references/marginals_sim0.png",
+                "references/marginals_ehr0.png"):
+        assert (work / "results" / rel).is_file(), rel
+    # bit-reproducible: a forced rerun of one chain gives the same file contents
+    before = dict(np.load(work / "results/references/mcmc/sim0.npz"))
+    # (targets before --forcerun, which takes several values)
+    proc = snakemake("--cores", "1", "results/references/mcmc/sim0.npz", "--forcerun", "reference_mcmc", *SMOKE,
+                     cwd=work)
+    assert "rule input_parameter_table" not in proc.stdout + proc.stderr
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    after = dict(np.load(work / "results/references/mcmc/sim0.npz"))
+    np.testing.assert_array_equal(before["samples"], after["samples"])
+    np.testing.assert_array_equal(before["rhat"], after["rhat"])

@@ -38,7 +38,6 @@ import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
 
 from cvsim6.reporting import headline_files as layout  # noqa: E402
-from cvsim6.reporting.headline_files import PER_NETWORKS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The scorecard's headlines that the structural encoder/decoder moves.
@@ -88,7 +87,7 @@ def evaluate(encoder_decoder: Path, out: Path, run: Path, cfg: dict, seed: int) 
     res, sc, sim = run / "results", cfg["structural_study"], cfg["simulator"]
     models, cs = res / "models" / "structural", sc["corrector_steps"]
     obs = str(res / "tables" / "structural_observation.csv")
-    p = {k: out / Path(PER_NETWORKS[k]).with_suffix("") for k in EVALUATED}
+    p = {k: out / Path(layout.PER_NETWORKS[k]).with_suffix("") for k in EVALUATED}
     for f in p.values():
         f.parent.mkdir(parents=True, exist_ok=True)
     ed, samples = str(encoder_decoder), str(out / "structural" / "manifold_samples.parquet")
@@ -117,7 +116,7 @@ def headline_files(run: Path, out: Path | None = None) -> dict[str, str]:
     when None), the others the run's."""
     res = run / "results"
     files = layout.headline_files(str(res), str(res))
-    return {**files, **({k: str(out / PER_NETWORKS[k]) for k in EVALUATED} if out else {})}
+    return {**files, **({k: str(out / layout.PER_NETWORKS[k]) for k in EVALUATED} if out else {})}
 
 
 def headline_ratios(files: dict[str, str]) -> dict[str, float]:

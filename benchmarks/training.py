@@ -82,9 +82,9 @@ def reached(df: pd.DataFrame, metric: str, fractions: list[float], budget: float
     """Best held-out error of each schedule within each fraction of the CPU budget."""
     rows = []
     for name, g in df.groupby("schedule", sort=False):
+        diverged_at = int(g["diverged_at_epoch"].max())  # one value per schedule
         g = g[np.isfinite(g[metric])]
-        row = {"schedule": name, "epochs": int(g["epoch"].max()) if len(g) else 0,
-               "diverged at epoch": int(g["diverged_at_epoch"].max()) if "diverged_at_epoch" in g else 0}
+        row = {"schedule": name, "epochs": int(g["epoch"].max()) if len(g) else 0, "diverged at epoch": diverged_at}
         for f in fractions:
             within = g[g["cpu_seconds_total"] <= f * budget * 1.02][metric]
             row[f"{f:g} x budget"] = float(within.min()) if len(within) else math.nan

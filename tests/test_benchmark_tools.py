@@ -307,3 +307,7 @@ def test_training_benchmark_reports_a_diverged_schedules_epoch_and_its_best_befo
     # the best finite error within each fraction of the 4 CPU-s budget
     assert table.loc["ours", "0.5 x budget"] == 0.4 and table.loc["ours", "1 x budget"] == 0.4
     assert table.loc["cap", "0.5 x budget"] == 0.3 and table.loc["cap", "1 x budget"] == 0.2
+    # a schedule that diverged in its first epoch has no finite error, and is still reported
+    first = tb.reached(df.assign(schedule="first", test_decoder=float("nan"), diverged_at_epoch=1).head(1),
+                       "test_decoder", [1.0], 4.0).iloc[0]
+    assert first["diverged at epoch"] == 1 and first["epochs"] == 0 and np.isnan(first["1 x budget"])

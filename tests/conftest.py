@@ -77,6 +77,20 @@ def snakemake(*args: str, cwd: Path = ROOT, env: dict | None = None,
                           env=env, stdin=subprocess.DEVNULL)
 
 
+def planned_rules(dry_run_output: str) -> dict[str, int]:
+    """Rule -> job count from the ``Job stats`` table of a Snakemake dry run."""
+    planned, inside = {}, False
+    for line in dry_run_output.splitlines():
+        parts = line.split()
+        if line.startswith("Job stats:"):
+            inside = True
+        elif inside and len(parts) == 2 and parts[1].isdigit() and parts[0] != "total":
+            planned[parts[0]] = int(parts[1])
+        elif inside and parts and parts[0] == "total":
+            break
+    return planned
+
+
 def copy_workflow(dest: Path) -> Path:
     """A copy of what the workflow needs (no results, no .snakemake) under ``dest``."""
     dest.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,8 @@ import pytest
 import yaml
 
 from conftest import (LOCAL_EHR_CSV, LOCAL_PUBLISHED, copy_workflow, needs_local_ehr, needs_published,
-                      require_local, snakemake)
+                      planned_rules, require_local, snakemake)
+from test_references_workflow import REFERENCE_RULES
 from cvsim6.data import datasets
 from cvsim6.studies import ehr_methods
 from cvsim6.studies import ehr as ehr_study
@@ -319,20 +320,6 @@ def test_calibration_stage_end_to_end(trained_run):
     np.testing.assert_array_equal(a.loc[b.index, cols].to_numpy(), b[cols].to_numpy())
 
 
-def planned_rules(dry_run_output: str) -> dict[str, int]:
-    """Rule -> job count from the ``Job stats`` table of a Snakemake dry run."""
-    planned, inside = {}, False
-    for line in dry_run_output.splitlines():
-        parts = line.split()
-        if line.startswith("Job stats:"):
-            inside = True
-        elif inside and len(parts) == 2 and parts[1].isdigit() and parts[0] != "total":
-            planned[parts[0]] = int(parts[1])
-        elif inside and parts and parts[0] == "total":
-            break
-    return planned
-
-
 @needs_local_ehr
 @pytest.mark.parametrize("module", ["structural_figures", "ehr_figures", "calibration_figures",
                                     "stiffness_figures"])
@@ -417,9 +404,7 @@ def test_references_run_on_the_smoke_networks(trained_run):
     NPE) in the tree of ``all`` and ``calibration``: it reruns none of their jobs."""
     work = trained_run
     dry = snakemake("-n", "references", *SMOKE, cwd=work)
-    assert set(planned_rules(dry.stdout + dry.stderr)) == {
-        "sobol_prior", "sobol_heatmap", "sobol_tables", "sensitivity_identifiability", "reference_cases",
-        "reference_mcmc", "reference_diagnostics", "reference_comparison", "reference_marginals", "references"}
+    assert set(planned_rules(dry.stdout + dry.stderr)) == REFERENCE_RULES
     proc = snakemake("--cores", "2", "references", *SMOKE, cwd=work)
     assert proc.returncode == 0, proc.stderr[-3000:]
     tables = work / "results" / "tables"

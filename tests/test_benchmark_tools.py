@@ -9,6 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cvsim6 import registry
+
 ROOT = Path(__file__).resolve().parents[1]
 HEADER = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
 
@@ -311,3 +313,26 @@ def test_training_benchmark_reports_a_diverged_schedules_epoch_and_its_best_befo
     first = tb.reached(df.assign(schedule="first", test_decoder=float("nan"), diverged_at_epoch=1).head(1),
                        "test_decoder", [1.0], 4.0).iloc[0]
     assert first["diverged at epoch"] == 1 and first["epochs"] == 0 and np.isnan(first["1 x budget"])
+
+
+def test_simulator_accuracy_errors_in_noise_units_and_the_fastest_batch_at_equal_accuracy():
+    sa = _load("simulator_accuracy")
+    truth = np.tile(np.linspace(1.0, 16.0, 16), (3, 1))
+    y = truth.copy()
+    y[1, 4] += 2.5 * registry.noise_std()[4]  # one entry off by 2.5 noise standard deviations
+    y[2, 0] += 0.5 * registry.noise_std()[0]
+    err = sa.errors(y, truth)
+    assert err["max_error_noise_sd"] == pytest.approx(2.5)
+    sd = registry.noise_std()
+    assert err["max_rel_error"] == pytest.approx(max(2.5 * sd[4] / 5.0, 0.5 * sd[0] / 1.0))
+    assert err["median_set_error_noise_sd"] == pytest.approx(0.5)  # per set: 0, 2.5, 0.5
+    points = pd.DataFrame({
+        "path": ["reference", "batch", "batch", "batch", "reference", "reference"],
+        "setting": ["truth", "b100", "b300", "b600", "r1e-4", "r1e-6"],
+        "sets_per_cpu_s": [0.1, 4000.0, 2500.0, 1500.0, 0.5, 0.25],
+        "max_error_noise_sd": [np.nan, 3e-2, 4e-3, 1e-3, 5e-3, 1e-5]})
+    eq = sa.equal_accuracy(points).set_index("reference")
+    assert list(eq.index) == ["r1e-4", "r1e-6"]  # the truth has no error of its own
+    # b300 and b600 are as accurate as r1e-4; b300 is the faster of them
+    assert eq.loc["r1e-4", "batch"] == "b300" and eq.loc["r1e-4", "speed_at_equal_accuracy"] == pytest.approx(5000)
+    assert eq.loc["r1e-6", "batch"] == "none" and np.isnan(eq.loc["r1e-6", "speed_at_equal_accuracy"])

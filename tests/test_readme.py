@@ -77,6 +77,30 @@ def test_slow_machine_run_time_is_the_measured_one():
     assert float(m[1]) * 60 == pytest.approx(_busy_minutes("workflow_times_second_machine"), rel=0.15)
 
 
+def _one_digit(x: float) -> float:
+    """``x`` to one significant digit, as the README states speed ratios ("about 4,000")."""
+    return float(f"{x:.1g}")
+
+
+def test_simulator_claims_are_the_committed_work_precision_measurement():
+    """The simulator's speed and error claims are those of ``simulator_accuracy.json`` for the
+    default config's steps per cycle."""
+    import json
+
+    m = re.search(r"about ([\d,]+) times the speed per core of an\s+adaptive Radau solver at the paper code's "
+                  r"tolerance, with errors under (\d+)% of the measurement\s+noise, and about ([\d,]+) times its "
+                  r"speed at equal accuracy", README)
+    assert m, "the simulator's claim in the introduction"
+    tables = {t["name"]: t for t in json.loads((ROOT / "benchmarks/results/simulator_accuracy.json").read_text())["tables"]}
+    rows = {t: [dict(zip(tables[t]["columns"], r)) for r in tables[t]["rows"]] for t in tables}
+    steps = yaml.safe_load((ROOT / "config/config.yaml").read_text())["simulator"]["steps_per_cycle"]
+    default = next(r for r in rows["work_precision"] if r["setting"] == f"{steps} steps/cycle")
+    assert float(m[1].replace(",", "")) == _one_digit(default["speed_vs_paper_rtol"])
+    assert default["max_error_noise_sd"] < float(m[2]) / 100
+    equal = next(r for r in rows["equal_accuracy"] if r["reference"] == "rtol 0.0001")
+    assert float(m[3].replace(",", "")) == _one_digit(equal["speed_at_equal_accuracy"])
+
+
 def test_test_command_is_what_ci_runs():
     pytest_cmd = next(c for c in commands("python") if "pytest" in c and "not slow" not in c)
     assert pytest_cmd in (ROOT / ".ci/run").read_text()

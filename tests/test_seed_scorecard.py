@@ -34,6 +34,11 @@ def _outputs(tmp_path) -> dict:
                                                ("best_delta_csv", "best.csv"), ("best_delta_md", "best.md"))}
 
 
+def _as_inputs(published: dict) -> dict:
+    """The published networks' headline files as the step's named inputs."""
+    return {f"published_{k}": v for k, v in published.items()}
+
+
 def _row(table: pd.DataFrame, phrase: str) -> pd.Series:
     rows = table[table["Headline"].str.contains(phrase, regex=False)]
     assert len(rows) == 1, phrase
@@ -45,7 +50,7 @@ def test_spread_of_known_ratios_over_three_seeds(tmp_path):
     (tmp_path / "pub").mkdir()
     published = {k: str(v) for k, v in _paper_files(tmp_path / "pub").items()}
     out = _outputs(tmp_path)
-    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, published, **files)
+    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, **files, **_as_inputs(published))
     table = pd.read_csv(out["csv"])
     # the 22 headlines but the 8 stiffness rows, which do not depend on the networks
     assert len(table) == 14 and not table["Headline"].str.startswith("Stiffness").any()
@@ -76,6 +81,7 @@ def test_spread_of_known_ratios_over_three_seeds(tmp_path):
     assert "seed 7: 13 of 13, seed 8: 12 of 13, seed 9: 13 of 13, published: 13 of 13" in Path(
         out["best_delta_md"]).read_text()
     md = Path(out["md"]).read_text()
+    assert "results are absent" not in md
     # within 1.5x: the min is seed 8's ratio where below 1, out for its two 0.5s (inversion mean,
     # manifold); the max is seed 8's where above 1, out for its three 3s (emulator mean, missing
     # data, e_k at delta = 2); the median is 1 (or 0.95, 0.9, 0.8) everywhere
@@ -87,9 +93,9 @@ def test_spread_of_known_ratios_over_three_seeds(tmp_path):
 def test_reproduction_scorecard_shows_the_spread_beside_the_default_seed(tmp_path):
     files = _seed_files(tmp_path)
     out = _outputs(tmp_path)
-    absent = {k: str(tmp_path / "absent" / k) for k in scorecard.HEADLINE_FILES}
-    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, absent, **files)
-    assert "published" not in pd.read_csv(out["csv"]).columns  # its files do not exist
+    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, **files)
+    assert "published" not in pd.read_csv(out["csv"]).columns  # its files are not given
+    assert "results are absent, so every bar is the paper's value" in Path(out["md"]).read_text()
     default = {k: files[f"seed7_{k}"] for k in scorecard.HEADLINE_FILES}
     text = (tmp_path / "seeds.csv").read_text()
     scorecard.write_scorecard(str(tmp_path / "card.csv"), str(tmp_path / "card.md"), "trained", {},
@@ -125,7 +131,7 @@ def test_goal_bar_is_the_paper_or_the_published_networks_score(tmp_path):
     published = {k: str(v) for k, v in _paper_files(tmp_path / "pub").items()}
     Path(published["ehr_emulator"]).write_text(json.dumps({"max": 1.4 * paper_values.EHR_EMULATOR_MAX_REL_L2}))
     out = _outputs(tmp_path)
-    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, published, **files)
+    seed_scorecard.write_seed_scorecard(*out.values(), SEEDS, 7, **files, **_as_inputs(published))
     table = pd.read_csv(out["csv"]).set_index("key")
     assert table.loc["ehr_emulator_l2", "bar / paper"] == pytest.approx(1.4)
     assert table.loc["manifold_l2", "bar / paper"] == 1.0

@@ -396,6 +396,19 @@ def test_seeds_target_trains_each_seed_on_the_shared_data(trained_run):
     for stat in ("min", "median", "max"):
         pd.testing.assert_series_equal(card.loc[spread.index, f"trained {stat} over seeds / paper"],
                                        spread[f"{stat} / paper"], check_names=False)
+    # the published networks' headline files, when present, are inputs of the seeds' scorecard:
+    # it shows them, and a change to one of them reruns it
+    published = headline_files(str(work / "results"), str(work / "results/published"))
+    if all(Path(p).is_file() for p in published.values()):
+        assert "published / paper" in spread.columns
+        emulator = Path(published["ehr_emulator"])
+        text = emulator.read_text()
+        emulator.write_text(json.dumps({**json.loads(text), "max": 1.01 * json.loads(text)["max"]}))
+        dry = snakemake("-n", "seeds", *SMOKE, cwd=work)
+        emulator.write_text(text)
+        assert set(planned_rules(dry.stdout + dry.stderr)) == {"seed_scorecard", "seeds"}, dry.stdout[-2000:]
+    else:
+        assert "results are absent" in (work / "results/report/seeds.md").read_text()
 
 
 @needs_local_ehr

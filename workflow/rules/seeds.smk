@@ -30,6 +30,7 @@ if workflow.modifier.is_main_snakefile():
 rule seed_scorecard:
     input:
         unpack(seed_headline_files),
+        unpack(published_headline_inputs),
     output:
         csv=SEED_SCORECARD,
         md=report(
@@ -57,7 +58,6 @@ rule seed_scorecard:
         function="cvsim6.reporting.seed_scorecard:write_seed_scorecard",
         seeds=config["seeds"],
         default_seed=config["seed"],
-        published=headline_files(NETWORK_RESULTS["published"]),
     script:
         "../scripts/call.py"
 

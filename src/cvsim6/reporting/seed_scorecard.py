@@ -109,13 +109,14 @@ def _shown(table: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
 
 
 def write_seed_scorecard(csv: str, md: str, best_delta_csv: str, best_delta_md: str, seeds: list[int],
-                         default_seed: int, published: dict[str, str], **files: str) -> None:
+                         default_seed: int, **files: str) -> None:
     """Workflow step: the spread of each headline over ``seeds`` (headline files as named inputs
     ``seed<seed>_<key>``), to ``csv`` and ``md``, and the best noise level per output to
-    ``best_delta_csv`` and ``best_delta_md``; the published networks beside them when all of
-    ``published``'s files exist."""
+    ``best_delta_csv`` and ``best_delta_md``; the published networks beside them when their
+    headline files are given (named inputs ``published_<key>``), else the paper is every bar."""
     by_seed = files_by_seed(seeds, files)
-    pub = published if all(Path(published[k]).is_file() for k in sc.HEADLINE_FILES) else None
+    pub = {k: files[f"published_{k}"] for k in sc.HEADLINE_FILES} if all(
+        f"published_{k}" in files for k in sc.HEADLINE_FILES) else None
     table = seed_table(by_seed, pub)
     best = best_delta_table(by_seed, pub)
     Path(csv).parent.mkdir(parents=True, exist_ok=True)
@@ -130,7 +131,9 @@ def write_seed_scorecard(csv: str, md: str, best_delta_csv: str, best_delta_md: 
              f"(default {default_seed}) on the same simulated data: the value per seed, and the minimum, "
              "median and maximum over the seeds as ratios to the paper (ours / paper; rows marked "
              "*ours/paper* hold that ratio already)."
-             + (" `published`: the paper's networks through this project's code." if pub else ""), ""]
+             + (" `published`: the paper's networks through this project's code." if pub else
+                " The published networks' results are absent, so every bar is the paper's value: run the "
+                "workflow with `config/published.yaml`, then this target again."), ""]
     for k in SPREAD:
         lines.append("- **{}** over the seeds: {} of {} within 1.5x of the paper.".format(
             k, *sc.within(table[f"{k} / paper"], 1.5)))

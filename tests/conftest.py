@@ -77,6 +77,12 @@ def snakemake(*args: str, cwd: Path = ROOT, env: dict | None = None,
                           env=env, stdin=subprocess.DEVNULL)
 
 
+#: The rules of target ``references`` beyond those of ``all`` and ``calibration``.
+REFERENCE_RULES = {"sobol_prior", "sobol_heatmap", "sobol_tables", "sensitivity_identifiability", "reference_cases",
+                   "reference_mcmc", "reference_diagnostics", "reference_comparison", "reference_marginals",
+                   "references"}
+
+
 def planned_rules(dry_run_output: str) -> dict[str, int]:
     """Rule -> job count from the ``Job stats`` table of a Snakemake dry run."""
     planned, inside = {}, False

@@ -336,3 +336,9 @@ def test_simulator_accuracy_errors_in_noise_units_and_the_fastest_batch_at_equal
     # b300 and b600 are as accurate as r1e-4; b300 is the faster of them
     assert eq.loc["r1e-4", "batch"] == "b300" and eq.loc["r1e-4", "speed_at_equal_accuracy"] == pytest.approx(5000)
     assert eq.loc["r1e-6", "batch"] == "none" and np.isnan(eq.loc["r1e-6", "speed_at_equal_accuracy"])
+    # no set to compare, an output of exactly 0, no Radau setting: no error raised
+    assert all(np.isnan(v) for v in sa.errors(y[:0], truth[:0]).values())
+    zero = truth.copy()
+    zero[:, 4] = 0.0
+    assert sa.errors(zero, zero)["max_rel_error"] == 0.0
+    assert sa.equal_accuracy(points[points["path"] == "batch"]).empty

@@ -5,12 +5,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from conftest import ROOT, planned_rules, snakemake
-
-# the rules of target ``references`` beyond those of ``all`` and ``calibration``
-REFERENCE_RULES = {"sobol_prior", "sobol_heatmap", "sobol_tables", "sensitivity_identifiability", "reference_cases",
-                   "reference_mcmc", "reference_diagnostics", "reference_comparison", "reference_marginals",
-                   "references"}
+from conftest import REFERENCE_RULES, ROOT, planned_rules, snakemake
 
 
 @pytest.mark.parametrize("configfile", [None, "config/smoke.yaml", "config/published.yaml"])

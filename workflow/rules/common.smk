@@ -246,7 +246,7 @@ def published_headline_inputs(wildcards=None):
     """The published networks' headline files as named inputs ``published_<headline>`` when
     all of them exist, else none: their run is not part of target `seeds`, whose scorecard
     shows them beside the seeds and reruns when they appear or change."""
-    files = headline_files(NETWORK_RESULTS["published"])
+    files = scorecard_files("published")
     if not all(Path(p).is_file() for p in files.values()):
         return {}
     return {f"published_{key}": path for key, path in files.items()}

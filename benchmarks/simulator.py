@@ -24,10 +24,17 @@ from cvsim6 import registry
 from cvsim6.model import solver
 
 
-def _timed(fn, *args, **kwargs):
+def timed(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, its CPU seconds (this process) and its wall seconds."""
     w0, c0 = time.perf_counter(), time.process_time()
     out = fn(*args, **kwargs)
     return out, time.process_time() - c0, time.perf_counter() - w0
+
+
+def ehr_prior_sets(n: int, seed: int) -> np.ndarray:
+    """``n`` parameter sets (rows, registry units) drawn uniformly from the EHR study's prior."""
+    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["ehr"])
+    return priors.sample_uniform(lo, hi, n, np.random.default_rng(seed))
 
 
 def main() -> None:
@@ -42,12 +49,11 @@ def main() -> None:
     args = ap.parse_args()
     run = results_io.Run()
 
-    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["ehr"])
-    P = priors.sample_uniform(lo, hi, max(args.n_batch, args.n_reference), np.random.default_rng(args.seed))
+    P = ehr_prior_sets(max(args.n_batch, args.n_reference), args.seed)
 
-    _, _, t_first = _timed(solver.simulate_batch, P[:1], steps_per_cycle=args.steps_per_cycle)
-    (out, st), cpu_b, wall_b = _timed(solver.simulate_batch, P[: args.n_batch], steps_per_cycle=args.steps_per_cycle)
-    (ref, rst), cpu_r, wall_r = _timed(solver.simulate_reference, P[: args.n_reference])
+    _, _, t_first = timed(solver.simulate_batch, P[:1], steps_per_cycle=args.steps_per_cycle)
+    (out, st), cpu_b, wall_b = timed(solver.simulate_batch, P[: args.n_batch], steps_per_cycle=args.steps_per_cycle)
+    (ref, rst), cpu_r, wall_r = timed(solver.simulate_reference, P[: args.n_reference])
 
     rate_b, rate_r = args.n_batch / cpu_b, args.n_reference / cpu_r
     speed = pd.DataFrame({

@@ -16,13 +16,11 @@ Writes ``benchmarks/results/simulator_accuracy.json``.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import pandas as pd
 
 from cvsim6 import registry
-from cvsim6.data import priors
 from cvsim6.model import solver
 
 #: The tolerance of the paper's own code (rtol; here atol = rtol), the speed baseline.
@@ -68,24 +66,19 @@ def _three_digits(x: pd.Series) -> pd.Series:
     return x.map(lambda v: float(f"{v:.3g}"))
 
 
-def _timed(fn, *args, **kwargs):
-    c0 = time.process_time()
-    out = fn(*args, **kwargs)
-    return out, time.process_time() - c0
-
-
 def measure(P: np.ndarray, n_sets: int, steps: list[int], rtols: list[float], truth_rtol: float) -> pd.DataFrame:
     """One row per setting: errors on the first ``n_sets`` rows of ``P`` against Radau at
     ``truth_rtol``, CPU seconds per set (batch: over all rows of ``P``; reference: over the
     ``n_sets``), sets per CPU-second and the speed ratio to Radau at :data:`PAPER_RTOL`."""
-    (truth, tst), cpu_truth = _timed(solver.simulate_reference, P[:n_sets], rtol=truth_rtol, atol=truth_rtol)
+    from simulator import timed
+    (truth, tst), cpu_truth, _ = timed(solver.simulate_reference, P[:n_sets], rtol=truth_rtol, atol=truth_rtol)
     solver.simulate_batch(P[:1], steps_per_cycle=steps[0])  # compile or load the kernel, untimed
     runs = [("reference", f"rtol {truth_rtol:g} (truth)", (truth, tst), cpu_truth, n_sets)]
     for s in steps:
-        (out, st), cpu = _timed(solver.simulate_batch, P, steps_per_cycle=s)
+        (out, st), cpu, _ = timed(solver.simulate_batch, P, steps_per_cycle=s)
         runs.append(("batch", f"{s} steps/cycle", (out[:n_sets], st[:n_sets]), cpu, len(P)))
     for r in rtols:
-        (out, st), cpu = _timed(solver.simulate_reference, P[:n_sets], rtol=r, atol=r)
+        (out, st), cpu, _ = timed(solver.simulate_reference, P[:n_sets], rtol=r, atol=r)
         runs.append(("reference", f"rtol {r:g}", (out, st), cpu, n_sets))
     ok = (tst == 0) & np.logical_and.reduce([st == 0 for _, _, (_, st), _, _ in runs])
     rows = []
@@ -102,6 +95,7 @@ def measure(P: np.ndarray, n_sets: int, steps: list[int], rtols: list[float], tr
 
 def main() -> None:
     import results_io
+    from simulator import ehr_prior_sets
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-sets", type=int, default=12, help="sets compared with the converged solve")
@@ -114,8 +108,7 @@ def main() -> None:
     args = ap.parse_args()
     run = results_io.Run()
 
-    lo, hi = priors.prior_bounds(priors.PAPER_PRIORS["ehr"])
-    P = priors.sample_uniform(lo, hi, max(args.n_timing, args.n_sets), np.random.default_rng(args.seed))
+    P = ehr_prior_sets(max(args.n_timing, args.n_sets), args.seed)
     points = measure(P, args.n_sets, args.steps, args.rtols, args.truth_rtol)
     equal = equal_accuracy(points)
     fmt = {"cpu_s_per_set": ".3g", "sets_per_cpu_s": ".4g", "max_rel_error": ".2e", "max_error_noise_sd": ".2e",

@@ -17,9 +17,11 @@ from pathlib import Path
 PACKAGE = "cvsim6"
 
 
+@lru_cache(maxsize=None)
 def _module_names(root: Path) -> dict[str, Path]:
     """``{dotted name relative to the package: file}``; a package is named by its folder
-    (``"nets"`` -> ``nets/__init__.py``), the top package by ``""``."""
+    (``"nets"`` -> ``nets/__init__.py``), the top package by ``""``. Read once per process:
+    the Snakefile asks for it once per rule."""
     names = {}
     for path in sorted(root.rglob("*.py")):
         parts = path.relative_to(root).with_suffix("").parts

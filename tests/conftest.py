@@ -22,6 +22,8 @@ import torch
 from cvsim6.data import priors
 from cvsim6 import registry
 
+import training_helpers
+
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 
@@ -182,3 +184,15 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """The training tests' synthetic split: (train, test) parquet paths."""
+    return training_helpers.write_synthetic_split(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="module")
+def emulator(data, tmp_path_factory):
+    """The training tests' tiny emulator: (folder, training summary)."""
+    return training_helpers.train_tiny_emulator(data, tmp_path_factory.mktemp("emu"))

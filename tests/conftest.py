@@ -22,8 +22,6 @@ import torch
 from cvsim6.data import priors
 from cvsim6 import registry
 
-import training_helpers
-
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 
@@ -189,10 +187,14 @@ def one_thread():
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     """The training tests' synthetic split: (train, test) parquet paths."""
+    import training_helpers
+
     return training_helpers.write_synthetic_split(tmp_path_factory.mktemp("data"))
 
 
 @pytest.fixture(scope="module")
 def emulator(data, tmp_path_factory):
     """The training tests' tiny emulator: (folder, training summary)."""
+    import training_helpers
+
     return training_helpers.train_tiny_emulator(data, tmp_path_factory.mktemp("emu"))

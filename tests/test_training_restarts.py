@@ -16,7 +16,8 @@ from cvsim6.training import hyperparameters as hp
 from cvsim6.training import train as tr
 from cvsim6.training.stages import EncoderDecoderStage
 
-from training_helpers import ROOT, ENCDEC, assert_same_weights, RESTARTS, encdec_run, drop_timing, SCREEN
+from conftest import ROOT
+from training_helpers import ENCDEC, assert_same_weights, RESTARTS, encdec_run, drop_timing, SCREEN
 
 
 def test_restarts_continue_the_candidate_with_the_lowest_test_loss(data, emulator, tmp_path):

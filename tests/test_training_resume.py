@@ -13,7 +13,11 @@ from cvsim6.training import fingerprint
 from cvsim6.training import train as tr
 from cvsim6.training.stages import EmulatorStage, EncoderDecoderStage, FlowStage
 
-from training_helpers import EMU, FLOW, ENCDEC, paths, state_dict, assert_same_weights, Killed, encdec_run
+from training_helpers import EMU, FLOW, ENCDEC, paths, state_dict, assert_same_weights, encdec_run
+
+
+class Killed(RuntimeError):
+    """The simulated kill of a training run part-way through."""
 
 
 #: The step schedule evaluating every epoch, and the cosine schedule keeping the best weights

@@ -11,7 +11,6 @@ from cvsim6.training import train as tr
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, default_parameters, noise_std
 
 
-ROOT = Path(__file__).resolve().parents[1]
 EMU = dict(hidden=32, layers=3, epochs=25, batch_size=32, lr=3e-3, lr_step=10, lr_gamma=0.7)
 FLOW = dict(hidden=16, blocks=4, layers_per_block=4, batchnorm=True, epochs=40, batch_size=64, lr=5e-3,
             lr_step=20, lr_gamma=0.7, weight_decay=1e-5)
@@ -61,10 +60,6 @@ def assert_same_weights(a, b):
     assert sa.keys() == sb.keys()
     for k in sa:
         assert torch.equal(sa[k], sb[k]), k
-
-
-class Killed(RuntimeError):
-    pass
 
 
 RESTARTS = {"epochs": 6, "restarts": 3, "restart_epochs": 2}

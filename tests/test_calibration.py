@@ -148,3 +148,30 @@ def test_calibration_summary_writes_the_figure_data_and_the_figures_draw_it(tmp_
                               "'matplotlib.pyplot') or m.startswith('cvsim6.studies')))"],
                              capture_output=True, text=True, check=True)
     assert imports.stdout.strip() == "[]", imports.stderr
+
+
+def test_calibration_cases_share_rows_and_noise_draw_across_noise_levels(tmp_path):
+    """The cases of every noise level are the same validation rows with the same unit noise
+    draw, scaled by delta; a count outside the split is refused, naming it."""
+    from training_helpers import synthetic
+
+    from cvsim6.data.datasets import load_split
+    from cvsim6.registry import noise_std
+    from cvsim6.studies.cases import calibration_cases
+
+    path = tmp_path / "validation.parquet"
+    synthetic(50, 4).to_parquet(path)
+    v_all, y_all = load_split(path)
+    theta_a, y_a, obs_a = calibration_cases(str(path), 12, 0.5, seed=7)
+    theta_b, y_b, obs_b = calibration_cases(str(path), 12, 2.0, seed=7)
+    np.testing.assert_array_equal(theta_a, theta_b)
+    np.testing.assert_array_equal(y_a, y_b)
+    rows = [int(np.flatnonzero((v_all == t).all(axis=1))[0]) for t in theta_a]
+    assert rows == sorted(set(rows)) and len(rows) == 12  # distinct rows, in split order
+    np.testing.assert_array_equal(y_a, y_all[rows])
+    np.testing.assert_allclose(obs_b - y_b, 4.0 * (obs_a - y_a), rtol=1e-12, atol=1e-9)
+    unit = (obs_b - y_b) / (2.0 * noise_std())  # standard normal draws, 12 x 16
+    assert abs(unit.mean()) < 0.3 and 0.7 < unit.std() < 1.3
+    assert not np.array_equal(calibration_cases(str(path), 12, 0.5, seed=8)[0], theta_a)
+    with pytest.raises(ValueError, match="n_cases = 51 must be between 1 and the 50"):
+        calibration_cases(str(path), 51, 0.5, seed=7)

@@ -60,3 +60,17 @@ def test_studies_import_no_figure_module():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "figures" not in proc.stdout, proc.stdout
+
+
+def test_reference_posteriors_load_neither_sbi_nor_the_npe_code():
+    """The MCMC references share their cases with the calibration stage, not its methods: a
+    change to the NPE code does not rerun them, and their jobs do not import sbi."""
+    from cvsim6.workflow.codegraph import module_closure
+
+    closure = {p.replace("\\", "/").split("src/cvsim6/")[-1] for p in module_closure("studies.references", PACKAGE)}
+    assert "studies/cases.py" in closure and "inference/reference_posterior.py" in closure
+    assert not {"inference/npe.py", "studies/calibration.py", "inference/calibration.py"} & closure
+    code = "import sys, cvsim6.studies.references\nprint(sorted(n for n in sys.modules if n.split('.')[0] == 'sbi'))"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]", proc.stdout

@@ -24,32 +24,17 @@ import torch
 from cvsim6.inference import calibration
 from cvsim6.model import identifiability
 from cvsim6.inference import inversion
-from cvsim6 import nets as nw
-from cvsim6.data.datasets import load_split
 from cvsim6.nets import DEFAULT_CORRECTOR_STEPS, load_model
 from cvsim6.inference.npe import load_npe
 from cvsim6.data.priors import prior_bounds
 from cvsim6.registry import PARAMETER_NAMES
 from cvsim6.table_files import to_markdown
+from cvsim6.studies.cases import calibration_cases
 
 log = logging.getLogger(__name__)
 
 #: The two inverse methods compared, in table and legend order.
 METHODS = ("inVAErt", "NPE")
-
-
-def calibration_cases(validation: str, n_cases: int, noise_level: float, seed: int
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n_cases`` validation rows picked with ``seed`` (the same for every noise level):
-    true parameters (n, 23), clean outputs (n, 16) and noisy observations (n, 16)."""
-    v, y = load_split(validation)
-    if not 1 <= int(n_cases) <= len(v):
-        raise ValueError(f"n_cases = {n_cases} must be between 1 and the {len(v)} validation rows")
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 31]))
-    pick = np.sort(rng.choice(len(v), size=int(n_cases), replace=False))
-    gen = torch.Generator().manual_seed(int(np.random.SeedSequence([int(seed), 37]).generate_state(1)[0]))
-    unit_noise = nw.draw_noise(len(pick), 1.0, gen).numpy()  # delta = 1: noise std s
-    return v[pick], y[pick], y[pick] + float(noise_level) * unit_noise
 
 
 def calibration_samples(validation: str, encoder_decoder: str, npe: str, samples: str, noise_level: float,

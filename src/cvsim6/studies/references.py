@@ -1,7 +1,7 @@
 """Reference posteriors beside the amortized methods, as workflow steps.
 
 Cases at one noise level delta (paper: 0.5): the first ``n_simulated`` simulated cases of the
-calibration stage (:func:`cvsim6.studies.calibration.calibration_cases`: the same validation
+calibration stage (:func:`cvsim6.studies.cases.calibration_cases`: the same validation
 rows and noisy observations y' as there, all 16 outputs observed) and ``n_patients`` EHR
 patients drawn (seeded) from the selected ones, their observed outputs only. Each case gets
 an MCMC reference posterior (:mod:`cvsim6.inference.reference_posterior`) under the EHR prior
@@ -25,7 +25,7 @@ from cvsim6.inference import reference_posterior as rp
 from cvsim6.registry import OUTPUT_NAMES, PARAMETER_NAMES, noise_std
 from cvsim6.table_files import to_markdown, write_table
 from cvsim6.seeding import derived_seed
-from cvsim6.studies.calibration import calibration_cases
+from cvsim6.studies.cases import calibration_cases
 
 log = logging.getLogger(__name__)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -20,6 +21,17 @@ COMPUTING = ("model", "data", "nets", "training", "inference")
 def module_name(path) -> str:
     parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def loaded_by_importing(modules: list[str], prefix: str) -> list[str]:
+    """Sorted names in ``sys.modules`` starting with ``prefix`` after a fresh interpreter
+    imports ``modules``."""
+    code = ("import importlib, sys\n"
+            f"for m in {modules!r}: importlib.import_module(m)\n"
+            f"print(sorted(n for n in sys.modules if n.startswith({prefix!r})))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return ast.literal_eval(proc.stdout.strip())
 
 
 def test_no_module_over_600_lines_and_no_function_over_100():
@@ -43,23 +55,15 @@ def test_no_backend_chosen_anywhere():
 def test_computation_does_not_import_reporting(subpackage):
     modules = [module_name(p) for p in SOURCES if p.relative_to(PACKAGE).parts[0] == subpackage]
     assert len(modules) >= 3
-    code = ("import importlib, sys\n"
-            f"for m in {modules!r}: importlib.import_module(m)\n"
-            "print(sorted(n for n in sys.modules if n.startswith('cvsim6.reporting')))")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip() == "[]", f"cvsim6.{subpackage} loads {proc.stdout.strip()}"
+    loaded = loaded_by_importing(modules, "cvsim6.reporting")
+    assert loaded == [], f"cvsim6.{subpackage} loads {loaded}"
 
 
 def test_studies_import_no_figure_module():
     """The studies compute and write tables; figures are drawn by rules of their own."""
     modules = [module_name(p) for p in SOURCES if p.relative_to(PACKAGE).parts[0] == "studies"]
-    code = ("import importlib, sys\n"
-            f"for m in {modules!r}: importlib.import_module(m)\n"
-            "print(sorted(n for n in sys.modules if n.startswith('cvsim6.reporting')))")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "figures" not in proc.stdout, proc.stdout
+    loaded = loaded_by_importing(modules, "cvsim6.reporting")
+    assert not [n for n in loaded if "figures" in n], loaded
 
 
 def test_reference_posteriors_load_neither_sbi_nor_the_npe_code():
@@ -67,10 +71,8 @@ def test_reference_posteriors_load_neither_sbi_nor_the_npe_code():
     change to the NPE code does not rerun them, and their jobs do not import sbi."""
     from cvsim6.workflow.codegraph import module_closure
 
-    closure = {p.replace("\\", "/").split("src/cvsim6/")[-1] for p in module_closure("studies.references", PACKAGE)}
+    closure = {Path(p).relative_to(PACKAGE).as_posix() for p in module_closure("studies.references", PACKAGE)}
     assert "studies/cases.py" in closure and "inference/reference_posterior.py" in closure
     assert not {"inference/npe.py", "studies/calibration.py", "inference/calibration.py"} & closure
-    code = "import sys, cvsim6.studies.references\nprint(sorted(n for n in sys.modules if n.split('.')[0] == 'sbi'))"
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip() == "[]", proc.stdout
+    loaded = loaded_by_importing(["cvsim6.studies.references"], "sbi")
+    assert loaded == [], loaded
